@@ -1,0 +1,1 @@
+"""Controllers behind one interface: Move2Hear and the baselines."""

@@ -1,0 +1,1 @@
+"""ROS-free core: scenes, acoustics, sounds, episodes, environment, spectrograms, metrics."""

@@ -1,0 +1,1 @@
+"""Audio front end: STFT/spectrograms and separation metrics."""

@@ -1,0 +1,1 @@
+"""The simulated world: scenes, navigation grid, binaural acoustics, camera, episodes, environment."""

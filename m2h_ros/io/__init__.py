@@ -1,0 +1,1 @@
+"""Files: rosbag2/MCAP bags through rosbags, message definitions, audio files."""

@@ -1,0 +1,1 @@
+"""Torch modules: separators f^B, f^M, f^R, encoders and policies; self-describing checkpoints."""

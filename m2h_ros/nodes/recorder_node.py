@@ -1,0 +1,74 @@
+"""recorder_node: records topics of the graph, as raw CDR, into a rosbag2 MCAP bag.
+
+Stopping it with Ctrl-C or SIGTERM closes the bag properly, so a recording is never lost."""
+
+from datetime import datetime
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+
+from m2h_ros.io.bag import BagWriter
+from m2h_ros.node_configs import RecorderConfig
+from m2h_ros.ros.introspection import adapted_qos, message_class
+from m2h_ros.ros.params import declare_config
+from m2h_ros.ros.qos import subscription_events
+from m2h_ros.ros.spin import run_node
+
+# Parameter traffic of every node is noise in a recording of the pipeline.
+IGNORED_TOPICS = frozenset({"/parameter_events"})
+
+
+class RecorderNode(Node):
+    def __init__(self):
+        super().__init__("recorder_node")
+        self.config: RecorderConfig = declare_config(self, RecorderConfig)
+        output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
+        self.writer = BagWriter(Path(output))
+        self.recorded: dict[str, str] = {}  # topic -> type name
+        self.counts: dict[str, int] = {}
+        self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
+        self.discover_topics()
+        self.get_logger().info(f"recording to {self.writer.path}")
+
+    def discover_topics(self) -> None:
+        wanted = set(self.config.topics)
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self.recorded or topic in IGNORED_TOPICS or (wanted and topic not in wanted):
+                continue
+            if len(types) != 1:
+                self.get_logger().warning(f"not recording {topic}: it carries several types {types}")
+                self.recorded[topic] = ""
+                continue
+            try:
+                msg_type = message_class(types[0])
+            except (ImportError, AttributeError, ValueError):
+                self.get_logger().warning(f"not recording {topic}: type {types[0]} is not importable")
+                self.recorded[topic] = ""
+                continue
+            self.recorded[topic] = types[0]
+            self.counts[topic] = 0
+            self.create_subscription(
+                msg_type, topic, lambda data, topic=topic: self.write(topic, data),
+                adapted_qos(self, topic), raw=True,
+                event_callbacks=subscription_events(self.get_logger(), topic))
+            self.get_logger().info(f"recording {topic} [{types[0]}]")
+
+    def write(self, topic: str, data: bytes) -> None:
+        self.writer.write_raw(topic, self.recorded[topic], self.get_clock().now().nanoseconds, data)
+        self.counts[topic] += 1
+
+    def destroy_node(self) -> None:
+        self.writer.close()
+        total = sum(self.counts.values())
+        # The context may already be shut down (Ctrl-C): log without the node's rosout publisher.
+        rclpy.logging.get_logger("recorder").info(f"closed {self.writer.path}: {total} messages on {len(self.counts)} topics")
+        super().destroy_node()
+
+
+def main(args=None):
+    run_node(RecorderNode, args)
+
+
+if __name__ == "__main__":
+    main()

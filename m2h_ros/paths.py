@@ -1,0 +1,14 @@
+"""Where the project keeps generated data (sound library, RIR banks, episodes, checkpoints)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+def data_dir() -> Path:
+    """Root of generated, cached data: ``$M2H_DATA_DIR`` or ``~/.cache/m2h_ros``."""
+    root = os.environ.get("M2H_DATA_DIR")
+    return Path(root).expanduser() if root else Path.home() / ".cache" / "m2h_ros"

@@ -1,0 +1,1 @@
+"""The ROS shell: conversions between core types and messages, QoS profiles, parameters."""

@@ -1,0 +1,1 @@
+"""Training loops (separator pretraining, PPO) on the in-process vectorized environment."""

@@ -1,0 +1,29 @@
+"""ament_python package m2h_ros: installs the nodes where `ros2 run m2h_ros <node>` finds them."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "m2h_ros"
+NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node")
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    package_data={PACKAGE: ["models/default/*.pt", "models/default/*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/params", glob("params/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="m2h_ros developers",
+    maintainer_email="m2h-ros@example.org",
+    description="Active audio-visual source separation (Move2Hear) as a ROS 2 node suite",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES],
+    },
+)

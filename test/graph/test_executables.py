@@ -1,0 +1,69 @@
+"""After the colcon build: the ament index resolves both packages, every node executable sits where
+`ros2 run` looks, starts with its params file, and exits cleanly on SIGINT; bad params fail loudly."""
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+from ament_index_python.packages import get_package_prefix, get_package_share_directory
+
+pytestmark = pytest.mark.graph
+ROOT = Path(__file__).resolve().parents[2]
+ROS2RUN = str(ROOT / "scripts" / "bin" / "ros2run")
+NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node")
+
+
+def test_ament_index_resolves_packages():
+    for package in ("m2h_ros", "m2h_msgs"):
+        assert Path(get_package_prefix(package)).is_dir()
+    share = Path(get_package_share_directory("m2h_ros"))
+    assert (share / "package.xml").is_file()
+    assert {p.name for p in (share / "params").glob("*.yaml")} >= {f"{n}.yaml" for n in NODES}
+
+
+@pytest.mark.parametrize("node", NODES)
+def test_executable_installed(node):
+    exe = Path(get_package_prefix("m2h_ros")) / "lib" / "m2h_ros" / node
+    assert exe.is_file() and os.access(exe, os.X_OK)
+
+
+def wait_for_line(proc, text: str, timeout: float = 20.0) -> list[str]:
+    lines, deadline = [], time.monotonic() + timeout
+    os.set_blocking(proc.stderr.fileno(), False)
+    while time.monotonic() < deadline and proc.poll() is None:
+        chunk = proc.stderr.readline()
+        if chunk:
+            lines.append(chunk)
+            if text in chunk:
+                return lines
+        else:
+            time.sleep(0.05)
+    pytest.fail(f"{proc.args} never logged {text!r}; it logged: {''.join(lines)}")
+
+
+@pytest.mark.parametrize("node", NODES)
+def test_node_starts_and_exits_on_sigint(node, processes, tmp_path):
+    share = Path(get_package_share_directory("m2h_ros"))
+    args = [ROS2RUN, "m2h_ros", node, "--ros-args", "--params-file", str(share / "params" / f"{node}.yaml")]
+    if node == "recorder_node":
+        args += ["-p", f"output:={tmp_path / 'bag'}"]
+    proc = processes.start(args, cwd=tmp_path)
+    wait_for_line(proc, "recording to" if node == "recorder_node" else "ready:")
+    code, _, err = processes.interrupt(proc)
+    assert code == 0, err
+    assert "Traceback" not in err
+
+
+def test_invalid_parameter_is_reported(processes):
+    proc = processes.start([ROS2RUN, "m2h_ros", "sim_node", "--ros-args", "-p", "num_episodes:=0"])
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 2
+    assert "SimConfig.num_episodes" in err and "out of range" in err
+
+
+def test_invalid_choice_is_reported(processes):
+    proc = processes.start([ROS2RUN, "m2h_ros", "sim_node", "--ros-args", "-p", "task:=bogus"])
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 2
+    assert "SimConfig.task = 'bogus': must be one of 'near_target', 'far_target'" in err
