@@ -4,11 +4,9 @@
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 "$ROOT/scripts/setup.sh"
-set +u
+set +eu  # env.sh sources colcon's setup.bash, which is not written for errexit/nounset
 source "$ROOT/env.sh"
-set -u
 cd "$ROOT"
-set +e
 python -m pytest "$@"
 code=$?
 set -e
