@@ -34,7 +34,7 @@ done
 
 # --- Python environment ---------------------------------------------------------------------
 [ -x "$VENV/bin/python" ] || { say "creating $VENV"; "$PY" -m venv "$VENV"; }
-PIP_KEY=$(sha "$ROOT/requirements.txt"; "$VENV/bin/python" -VV)
+PIP_KEY=$(sha "$ROOT/requirements.txt" "$ROOT/requirements-nodeps.txt"; "$VENV/bin/python" -VV)
 if ! fresh pip "$PIP_KEY"; then
   say "installing pinned Python dependencies (first run: a few minutes)"
   "$VENV/bin/python" -m pip install --disable-pip-version-check -q -r "$ROOT/requirements.txt"
@@ -43,11 +43,14 @@ if ! fresh pip "$PIP_KEY"; then
   # The ROS wheels export CMake files naming the wheel builder's Python; point them at ours.
   PYINC=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
   NPINC=$("$VENV/bin/python" -c "import numpy; print(numpy.get_include())")
-  grep -rl /opt/python/cp311-cp311 "$VENV/share" --include='*.cmake' 2>/dev/null | xargs -r sed -i \
+  { grep -rl /opt/python/cp311-cp311 "$VENV/share" --include='*.cmake' 2>/dev/null || true; } | xargs -r sed -i \
     -e "s#/opt/python/cp311-cp311/include/python3.11#$PYINC#g" \
     -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$NPINC#g"
   echo "$PIP_KEY" > "$STAMPS/pip"
 fi
+
+# --- sound sources: Debian packages downloaded and unpacked into the data dir (not installed) ---
+"$ROOT/scripts/fetch_sound_sources.sh" >/dev/null
 
 # --- colcon build of m2h_msgs (ament_cmake) and m2h_ros (ament_python) ----------------------
 # --symlink-install: Python sources and params are used in place, so edits need no rebuild;

@@ -65,3 +65,37 @@ def processes():
     procs = Processes()
     yield procs
     procs.cleanup()
+
+
+def write_sound_folders(root: Path, *, seconds: float = 3.0, sample_rate: int = 16000) -> Path:
+    """A tiny user-style sound folder tree (root/<category>/<class>/<split>/*.wav) of synthetic
+    tones and noise bursts: enough for episode and environment tests that need no real audio."""
+    import numpy as np
+    import soundfile
+
+    rng = np.random.default_rng(0)
+    t = np.arange(int(seconds * sample_rate)) / sample_rate
+    kinds = {"speech": ("voice_a", "voice_b"), "music": ("tones_a", "tones_b"), "background": ("hiss",)}
+    for category, classes in kinds.items():
+        for c, cls in enumerate(classes):
+            for s, (split, files) in enumerate((("heard", 3), ("unheard", 2))):
+                folder = root / category / cls / split
+                folder.mkdir(parents=True, exist_ok=True)
+                for k in range(s * 3, s * 3 + files):  # distinct files in heard and unheard
+                    envelope = 0.5 + 0.5 * np.sin(2 * np.pi * (0.7 + k) * t) ** 2
+                    if category == "background":
+                        audio = rng.standard_normal(t.size) * 0.1
+                    else:
+                        f0 = 150 + 90 * c + 40 * k + (300 if category == "music" else 0)
+                        audio = sum(np.sin(2 * np.pi * f0 * h * t) / h for h in range(1, 5)) * envelope
+                    soundfile.write(folder / f"{cls}_{k}.wav", audio.astype(np.float32), sample_rate)
+    return root
+
+
+@pytest.fixture(scope="session")
+def folder_library(tmp_path_factory):
+    """A SoundLibrary built in memory from synthetic folders (a few clips per class)."""
+    from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
+
+    root = write_sound_folders(tmp_path_factory.mktemp("sound_folders"))
+    return SoundLibrary.from_folders(root, config=SoundLibraryConfig(clips_heard=4, clips_unheard=2))

@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Fetch the Debian packages the sound library is built from, without installing them system-wide:
+# `apt-get download` + `dpkg-deb -x` into a cache folder. Idempotent: a package whose marker file
+# names the wanted version is skipped, so a second run is a fast no-op.
+#
+# Usage: scripts/fetch_sound_sources.sh [DEST]
+#   DEST defaults to $M2H_SOUND_SOURCES, else ${M2H_DATA_DIR:-~/.cache/m2h_ros}/sound_sources
+#   (the same default as m2h_ros.core.sounds.sources.sources_dir()).
+set -euo pipefail
+
+DEST="${1:-${M2H_SOUND_SOURCES:-${M2H_DATA_DIR:-$HOME/.cache/m2h_ros}/sound_sources}}"
+
+# package=version (pinned: the manifest records them; a new version is a new library).
+# A path (glob) after the second '=' extracts only that part and the copyright file (megaglest-data is
+# a 242 MB download, of which only the tileset sounds are kept).
+PACKAGES=(
+  "asterisk-core-sounds-en-g722=1.6.1-1="
+  "asterisk-core-sounds-es-g722=1.6.1-1="
+  "asterisk-core-sounds-fr-g722=1.6.1-1="
+  "asterisk-core-sounds-it-g722=1.6.1-1="
+  "asterisk-core-sounds-ru-g722=1.6.1-1="
+  "asterisk-moh-opsound-g722=2.03-1.1="
+  "timgm6mb-soundfont=1.3-5="
+  "megaglest-data=3.13.0-3=./usr/share/games/megaglest/tilesets/*/sounds"
+  "lincity-ng-data=2.9~git20150314-5=./usr/share/games/lincity-ng/sounds"
+)
+
+mkdir -p "$DEST/root" "$DEST/markers"
+missing=()
+for entry in "${PACKAGES[@]}"; do
+  IFS='=' read -r pkg version subdir <<<"$entry"
+  marker="$DEST/markers/$pkg"
+  if [[ -f "$marker" && "$(cat "$marker")" == "$version" ]]; then continue; fi
+  missing+=("$entry")
+done
+if [[ ${#missing[@]} -eq 0 ]]; then
+  echo "sound sources up to date in $DEST"
+  exit 0
+fi
+
+if ! apt-cache show "${missing[0]%%=*}" >/dev/null 2>&1; then
+  apt-get update -qq
+fi
+workdir="$(mktemp -d "$DEST/.download.XXXXXX")"
+trap 'rm -rf "$workdir"' EXIT
+for entry in "${missing[@]}"; do
+  IFS='=' read -r pkg version subdir <<<"$entry"
+  echo "fetching $pkg $version"
+  (cd "$workdir" && apt-get download -q -o APT::Sandbox::User="$(id -un)" "$pkg=$version")
+  deb="$(ls "$workdir"/"${pkg}"_*.deb)"
+  if [[ -n "$subdir" ]]; then
+    dpkg-deb --fsys-tarfile "$deb" | tar -x -C "$DEST/root" --wildcards "$subdir" "./usr/share/doc/$pkg/copyright"
+  else
+    dpkg-deb -x "$deb" "$DEST/root"
+  fi
+  rm -f "$deb"
+  echo "$version" >"$DEST/markers/$pkg"
+done
+echo "sound sources ready in $DEST"
