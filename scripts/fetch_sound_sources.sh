@@ -23,6 +23,7 @@ PACKAGES=(
   "timgm6mb-soundfont=1.3-5="
   "megaglest-data=3.13.0-3=./usr/share/games/megaglest/tilesets/*/sounds"
   "lincity-ng-data=2.9~git20150314-5=./usr/share/games/lincity-ng/sounds"
+  "libmysofa1=1.3.1~dfsg0-1=./usr/share/libmysofa/MIT_KEMAR_normal_pinna.sofa"
 )
 
 mkdir -p "$DEST/root" "$DEST/markers"

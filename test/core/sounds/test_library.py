@@ -10,6 +10,7 @@ import pytest
 from m2h_ros.core.sounds.clips import POWER_TOLERANCE, clip_power
 from m2h_ros.core.sounds.library import CATEGORIES, SPLITS, SoundLibrary, SoundLibraryConfig
 from m2h_ros.core.sounds.sources import CLASS_SPECS, DEBIAN_PACKAGES, list_sources, load_source
+from m2h_ros.core.world.hrtf import HRTF_PACKAGE
 from m2h_ros.errors import CacheError, ConfigError
 
 pytestmark = pytest.mark.slow  # builds the real --small library once per session
@@ -178,4 +179,5 @@ def test_config_rejects_bad_values(field, value):
 def test_fetch_script_pins_the_same_packages():
     script = (REPO / "scripts" / "fetch_sound_sources.sh").read_text()
     pinned = dict(re.findall(r'^\s*"([a-z0-9.+-]+)=([^=]+)=[^"]*"', script, flags=re.M))
-    assert pinned == DEBIAN_PACKAGES
+    # The fetch script also brings the HRTF (an acoustics input, not part of the library's key).
+    assert pinned == {**DEBIAN_PACKAGES, HRTF_PACKAGE[0]: HRTF_PACKAGE[1]}

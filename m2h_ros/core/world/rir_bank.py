@@ -1,0 +1,140 @@
+"""Per-scene bank of binaural RIRs for every (source node, receiver node, heading), cached on disk.
+
+Layout: ``data_dir()/rir_banks/v<VERSION>/<scene fingerprint>-<config digest>/src_<node>.npy``,
+one (N, row_length) array per source node (see ``acoustics.AcousticsConfig.row_length``), computed
+lazily on first use or all at once with ``build()``, written atomically (temporary file + rename)
+and memory-mapped on read.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from m2h_ros.core.world.acoustics import N_HEADINGS, VERSION, AcousticsConfig, simulate_source
+from m2h_ros.errors import CacheError, ConfigError
+from m2h_ros.paths import data_dir
+
+
+def bank_dir(scene: Any, config: AcousticsConfig, cache_dir: Path | None = None) -> Path:
+    """Folder of one scene's bank under ``cache_dir`` (default ``data_dir()/rir_banks``)."""
+    root = Path(cache_dir) if cache_dir is not None else data_dir() / "rir_banks"
+    return root / f"v{VERSION}" / f"{scene.fingerprint()}-{config.digest()}"
+
+
+def _simulate_and_store(scene: Any, node: int, config: AcousticsConfig, path: Path) -> Path:
+    rows = simulate_source(scene, node, config)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as handle:
+        np.save(handle, rows)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)  # atomic: readers see the old state or the whole file
+    return path
+
+
+class RirBank:
+    """Binaural RIRs of one scene; ``rirs()`` gathers a batch, computing missing source nodes."""
+
+    def __init__(self, scene: Any, config: AcousticsConfig = AcousticsConfig(), *,
+                 cache_dir: Path | None = None, progress: bool = True) -> None:
+        self.scene = scene
+        self.config = config
+        self.progress = progress
+        self.n_nodes = len(scene.grid.positions)
+        self.directory = bank_dir(scene, config, cache_dir)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._write_meta()
+        self._maps: list[np.ndarray | None] = [None] * self.n_nodes
+
+    def _write_meta(self) -> None:
+        meta = self.directory / "meta.json"
+        if not meta.exists():
+            text = json.dumps({"scene_id": self.scene.scene_id, "fingerprint": self.scene.fingerprint(),
+                               "version": VERSION, "n_nodes": self.n_nodes,
+                               "config": self.config.__dict__}, indent=1)
+            tmp = meta.with_name(f".meta.{os.getpid()}.tmp")
+            tmp.write_text(text)
+            os.replace(tmp, meta)
+
+    def path(self, node: int) -> Path:
+        return self.directory / f"src_{node:04d}.npy"
+
+    def missing(self) -> list[int]:
+        """Source nodes with no file on disk yet."""
+        return [n for n in range(self.n_nodes) if not self.path(n).exists()]
+
+    def build(self, *, progress: bool = True, workers: int = 1) -> None:
+        """Compute every missing source node now (``workers`` processes), then open them all."""
+        todo = self.missing()
+        bar = tqdm(total=len(todo), desc=f"RIR bank {self.scene.scene_id}", unit="src",
+                   disable=not (progress and self.progress and todo))
+        if workers > 1 and len(todo) > 1:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futures = [pool.submit(_simulate_and_store, self.scene, n, self.config, self.path(n))
+                           for n in todo]
+                for future in futures:
+                    future.result()
+                    bar.update()
+        else:
+            for node in todo:
+                _simulate_and_store(self.scene, node, self.config, self.path(node))
+                bar.update()
+        bar.close()
+        for node in range(self.n_nodes):
+            self._source(node)
+
+    def _source(self, node: int) -> np.ndarray:
+        """The memory-mapped rows of one source node, computed first if absent."""
+        rows = self._maps[node]
+        if rows is not None:
+            return rows
+        path = self.path(node)
+        if not path.exists():
+            _simulate_and_store(self.scene, node, self.config, path)
+        expected = (self.n_nodes, self.config.row_length)
+        try:
+            rows = np.load(path, mmap_mode="r")
+        except (ValueError, OSError, EOFError) as err:
+            raise CacheError(f"RIR bank file {path} is corrupt ({err}); delete it to rebuild") from err
+        if rows.shape != expected or rows.dtype != np.dtype(self.config.storage_dtype):
+            raise CacheError(f"RIR bank file {path} holds {rows.dtype}{rows.shape}, expected "
+                             f"{self.config.storage_dtype}{expected}; delete it to rebuild")
+        self._maps[node] = rows
+        return rows
+
+    def rirs(self, source_nodes, receiver_nodes, headings) -> np.ndarray:
+        """(B, 2, T) float32 binaural RIRs for B (source node, receiver node, heading) triples."""
+        sources = np.asarray(source_nodes, dtype=np.int64).ravel()
+        receivers = np.asarray(receiver_nodes, dtype=np.int64).ravel()
+        heads = np.asarray(headings, dtype=np.int64).ravel()
+        if not len(sources) == len(receivers) == len(heads):
+            raise ConfigError(f"rirs() needs equally long index arrays, got {len(sources)}, "
+                              f"{len(receivers)}, {len(heads)}")
+        for name, values, limit in (("source", sources, self.n_nodes), ("receiver", receivers, self.n_nodes),
+                                    ("heading", heads, 4)):
+            if len(values) and (values.min() < 0 or values.max() >= limit):
+                raise ConfigError(f"{name} index out of range 0..{limit - 1}: {values}")
+        # Read only the late part and the asked heading's early part, straight into float32.
+        n_early, n_taps = self.config.n_early, self.config.n_taps
+        late_start = N_HEADINGS * 2 * n_early
+        out = np.empty((len(sources), 2, n_taps), dtype=np.float32)
+        for node in np.unique(sources):
+            where = np.flatnonzero(sources == node)
+            rows = self._source(int(node))
+            out[where] = rows[receivers[where], late_start:].reshape(len(where), 2, n_taps)
+            for item in where:  # contiguous slices: cheaper than a 2-D fancy index
+                start = heads[item] * 2 * n_early
+                out[item, :, :n_early] += rows[receivers[item], start: start + 2 * n_early].reshape(2, n_early)
+        return out
+
+    def size_on_disk(self) -> int:
+        """Bytes of the source files present."""
+        return sum(p.stat().st_size for p in self.directory.glob("src_*.npy"))
+
