@@ -99,3 +99,32 @@ def folder_library(tmp_path_factory):
 
     root = write_sound_folders(tmp_path_factory.mktemp("sound_folders"))
     return SoundLibrary.from_folders(root, config=SoundLibraryConfig(clips_heard=4, clips_unheard=2))
+
+
+@pytest.fixture(scope="session")
+def sound_sources() -> Path:
+    """The extracted Debian sound packages (fetched once by scripts/fetch_sound_sources.sh)."""
+    from m2h_ros.core.sounds.sources import check_sources, sources_dir
+    from m2h_ros.errors import CacheError
+
+    root = sources_dir()
+    try:
+        check_sources(root)
+    except CacheError:
+        subprocess.run(["bash", str(ROOT / "scripts" / "fetch_sound_sources.sh"), str(root)], check=True)
+    return root
+
+
+@pytest.fixture(scope="session")
+def small_data_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("m2h_data")
+
+
+@pytest.fixture(scope="session")
+def small_library(sound_sources, small_data_dir):
+    """The --small library of real material (a few clips per class), built once per session."""
+    from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("M2H_DATA_DIR", str(small_data_dir))
+        return SoundLibrary.build(SoundLibraryConfig.small(), sources=sound_sources, progress=False)

@@ -1,0 +1,523 @@
+"""The Move2Hear environment: many episode slots stepped together in one process, plus a Gymnasium
+single-env wrapper over the same code.
+
+``BatchEnv`` holds B slots; each plays episodes from a list in a fixed, seeded order and moves on to
+its next episode when one ends (same-step auto-reset: the terminal observation goes to
+``info["final_observation"]``). One step, for all slots at once:
+
+* actions: MoveForward follows ``grid.forward[node, heading]``, TurnLeft (h + 1) % 4, TurnRight
+  (h - 1) % 4, Stop ends a far-target episode and is a no-op in near-target;
+* audio: every source's binaural RIR at the new pose (one RirBank per scene), convolved with its clip
+  in the frequency domain (the clips' spectra are computed once per episode, since each source plays
+  the same clip at every step), mixture = sum of the renders / number of sources (the original
+  code's rule), plus microphone noise of std ``mic_noise`` x the mixture's RMS (a per-episode rng);
+  the separators' input is log(1 + |STFT|) of that mixture;
+* camera: RGB + depth from the per-scene view cache (optional: audio-only runs skip it);
+* reward (AV Navigator, pi^N): +success_reward for Stop at the target (far-target), +-distance_reward
+  per metre of geodesic distance gained/lost, -step_penalty per step. An episode is terminated by
+  Stop (far-target) and truncated after ``max_steps`` actions (max_steps + 1 observations).
+
+Observations (batched over slots): ``audio`` (B, 2, 16000) float32 mixture, ``spectrogram``
+(B, 2, 512, 32) float32 log(1 + |STFT|), ``rgb`` (B, H, W, 3) uint8, ``depth`` (B, H, W, 1) float32
+metres, ``pose`` (B, 3) float32 (x, y, heading angle in rad), ``node``, ``heading``, ``target_class``
+(0 speech, 1 music), ``step`` (B,) int64. The ground truth the separators are scored and trained on
+is in ``info``: the target's dry clip and
+the target alone as heard (its binaural render, not divided by the number of sources, as in the
+original code's ground-truth components).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from scipy import fft as sfft
+
+from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, stft
+from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
+from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.camera import CameraConfig, CameraViews
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode
+from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
+from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.scene import Scene, load_split
+from m2h_ros.errors import ConfigError, EpisodeError, M2HError
+
+N_ACTIONS = 4
+_NOISE_SALT = 0x6D6963  # separates the microphone-noise stream from other uses of an episode seed
+
+Observation = dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything that changes what the environment returns (BatchEnv's threads and pose cache do not)."""
+
+    mic_noise: float = 0.0  # noise std relative to the clean mixture's RMS
+    camera: bool = True  # False: no rgb/depth (cheaper audio-only training)
+    camera_config: CameraConfig = field(default_factory=CameraConfig)
+    acoustics: AcousticsConfig = field(default_factory=AcousticsConfig)
+    stft: StftConfig = DEFAULT_STFT
+    success_reward: float = 10.0
+    distance_reward: float = 0.25  # per metre of geodesic distance gained (lost: negative)
+    step_penalty: float = 0.01
+    seed: int = 0  # order in which the slots take the episodes
+    shuffle: bool = True  # False: slot i plays episodes i, i + B, i + 2B, ... of the list
+
+    def __post_init__(self) -> None:
+        for name, kind in (("camera_config", CameraConfig), ("acoustics", AcousticsConfig),
+                           ("stft", StftConfig)):
+            if not isinstance(getattr(self, name), kind):
+                raise ConfigError(f"EnvConfig.{name} must be a {kind.__name__}, "
+                                  f"got {type(getattr(self, name)).__name__}")
+        for name in ("mic_noise", "success_reward", "distance_reward", "step_penalty"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+                raise ConfigError(f"EnvConfig.{name}={value!r} must be a finite number")
+        if self.mic_noise < 0:
+            raise ConfigError(f"EnvConfig.mic_noise={self.mic_noise!r} must be >= 0")
+        for name in ("camera", "shuffle"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"EnvConfig.{name}={getattr(self, name)!r} must be a bool")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ConfigError(f"EnvConfig.seed={self.seed!r} must be a non-negative int")
+        if self.acoustics.sample_rate != self.stft.sample_rate:
+            raise ConfigError(f"EnvConfig: acoustics.sample_rate={self.acoustics.sample_rate} differs from "
+                              f"stft.sample_rate={self.stft.sample_rate}")
+
+
+@dataclass
+class _SceneData:
+    """Per-scene resources, created when a slot first plays an episode in that scene."""
+
+    scene: Scene
+    bank: RirBank
+    views: CameraViews | None
+
+
+def _scene_key(episode: Episode) -> tuple[str, str, int]:
+    return episode.scene_split, episode.scene_preset, episode.scene_index
+
+
+def _episode_scene(key: tuple[str, str, int]) -> Scene:
+    split, preset, index = key
+    scenes = load_split(split, preset=preset)
+    if not 0 <= index < len(scenes):
+        raise EpisodeError(f"scene index {index} is not in split {split!r} ({len(scenes)} scenes)")
+    return scenes[index]
+
+
+class BatchEnv:
+    """``n_envs`` Move2Hear episode slots stepped together; all arrays are batched over slots.
+
+    ``reset()`` starts every slot (``episodes`` forces per-slot episodes, an Episode or an index into
+    the list, None entries take the next in order); ``step(actions)`` returns
+    ``(obs, reward, terminated, truncated, info)``. With ``autoreset`` (default) a slot whose episode
+    ended starts its next one in the same call: the returned observation is the new episode's first,
+    and ``info["final_observation"]`` / ``info["final_info"]`` hold the whole batch as it was before
+    those resets. Without it, stepping after an episode ended raises until ``reset()``.
+
+    Speed options that leave every number unchanged: ``threads`` renders contiguous chunks of slots
+    in parallel; ``pose_cache`` keeps, per slot, the renders of up to that many poses of the current
+    episode, so a revisited pose (turning back, Stop in near-target) skips the convolution and STFT
+    (only the microphone noise is drawn anew). ``prepare()`` fills the RIR banks and view caches.
+    """
+
+    def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, n_envs: int,
+                 config: EnvConfig = EnvConfig(), rir_cache_dir: Path | None = None,
+                 autoreset: bool = True, threads: int = 1, pose_cache: int = 32) -> None:
+        if not isinstance(config, EnvConfig):
+            raise ConfigError(f"config must be an EnvConfig, got {type(config).__name__}")
+        if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
+            raise ConfigError(f"n_envs={n_envs!r} must be a positive int")
+        self.episodes = list(episodes)
+        if not self.episodes:
+            raise ConfigError("BatchEnv needs at least one episode")
+        if library.config.sample_rate != config.acoustics.sample_rate:
+            raise ConfigError(f"sound library sample rate {library.config.sample_rate} differs from "
+                              f"the acoustics' {config.acoustics.sample_rate}")
+        if library.config.clip_len != config.stft.clip_samples:
+            raise ConfigError(f"sound library clips have {library.config.clip_len} samples, the STFT "
+                              f"expects {config.stft.clip_samples}")
+        self.library, self.config, self.n_envs = library, config, int(n_envs)
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+            raise ConfigError(f"threads={threads!r} must be a positive int")
+        if isinstance(pose_cache, bool) or not isinstance(pose_cache, (int, np.integer)) or pose_cache < 0:
+            raise ConfigError(f"pose_cache={pose_cache!r} must be a non-negative int")
+        self.autoreset, self.threads, self.rir_cache_dir = autoreset, int(threads), rir_cache_dir
+        self.pose_cache = int(pose_cache)
+        self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
+        self.n_samples = config.stft.clip_samples
+        self.max_sources = max(len(e.source_nodes) for e in self.episodes)
+        self.max_nodes = max(_episode_scene(k).grid.n_nodes for k in {_scene_key(e) for e in self.episodes})
+        self.max_episode_steps = max(e.max_steps for e in self.episodes)
+        # One linear convolution of a clip with a full RIR, without wrap-around into the kept samples.
+        self._n_fft = sfft.next_fast_len(self.n_samples + config.acoustics.n_taps - 1, real=True)
+        self._scenes: dict[tuple[str, str, int], _SceneData] = {}
+        self._index_of: dict[Episode, int] = {}
+        for i, e in enumerate(self.episodes):
+            self._index_of.setdefault(e, i)
+        self._seed = int(config.seed)
+        b, k = self.n_envs, self.max_sources
+        self._current: list[Episode | None] = [None] * b
+        self._slot_scene: list[_SceneData | None] = [None] * b
+        self._rngs: list[np.random.Generator | None] = [None] * b
+        # Per slot: (node, heading) -> clean renders (+ spectrogram without noise), LRU order.
+        self._pose_cache: list[OrderedDict] = [OrderedDict() for _ in range(b)]
+        self._renders = np.zeros((b, 2), np.int64)   # per slot: pose-cache hits, fresh renders
+        self._started = np.zeros(b, np.int64)       # episodes each slot has started since reset(seed)
+        self._episode_index = np.full(b, -1, np.int64)
+        self._node, self._heading, self._step = (np.zeros(b, np.int64) for _ in range(3))
+        self._target, self._max_steps, self._target_class = (np.zeros(b, np.int64) for _ in range(3))
+        self._far, self._done = np.zeros(b, bool), np.ones(b, bool)
+        self._sources = np.zeros((b, k), np.int64)
+        self._source_weight = np.zeros(b, np.float32)  # 1 / number of sources
+        self._clip_spectra = np.zeros((b, k, self._n_fft // 2 + 1), np.complex64)
+        self._target_mono = np.zeros((b, self.n_samples), np.float32)
+
+    # ------------------------------------------------------------------ spaces
+    def single_observation_space(self) -> spaces.Dict:
+        """The Gymnasium space of one slot's observation (what ``obs[key][i]`` satisfies)."""
+        cfg, cam = self.config, self.config.camera_config
+        f32, inf = np.float32, np.inf
+        space = {
+            "audio": spaces.Box(-inf, inf, (2, self.n_samples), f32),
+            "spectrogram": spaces.Box(0.0, inf, (2, cfg.stft.n_freq, cfg.stft.n_frames), f32),
+            "pose": spaces.Box(-inf, inf, (3,), f32),
+            "node": spaces.Discrete(self.max_nodes),
+            "heading": spaces.Discrete(N_HEADINGS),
+            "target_class": spaces.Discrete(len(TARGET_CATEGORIES)),
+            "step": spaces.Discrete(self.max_episode_steps + 1),
+        }
+        if cfg.camera:
+            space["rgb"] = spaces.Box(0, 255, (cam.height, cam.width, 3), np.uint8)
+            space["depth"] = spaces.Box(0.0, cam.max_depth, (cam.height, cam.width, 1), f32)
+        return spaces.Dict(space)
+
+    @property
+    def current_episodes(self) -> list[Episode | None]:
+        return list(self._current)
+
+    @property
+    def pose_cache_hit_rate(self) -> float:
+        """Share of audio observations served from the pose cache since construction."""
+        hits, fresh = self._renders.sum(axis=0)
+        return float(hits / max(hits + fresh, 1))
+
+    def scene_of(self, slot: int) -> Scene:
+        data = self._slot_scene[slot]
+        if data is None:
+            raise M2HError(f"slot {slot} has not started an episode: call reset() first")
+        return data.scene
+
+    # ------------------------------------------------------------------ control
+    def reset(self, *, seed: int | None = None, episodes: Sequence[Episode | int | None] | None = None
+              ) -> tuple[Observation, dict[str, Any]]:
+        """Start every slot; ``seed`` re-seeds the episode order and restarts it."""
+        if seed is not None:
+            if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+                raise ConfigError(f"seed={seed!r} must be a non-negative int")
+            self._seed = int(seed)
+            self._started[:] = 0
+        if episodes is not None and len(episodes) != self.n_envs:
+            raise ConfigError(f"episodes has {len(episodes)} entries for {self.n_envs} slots")
+        slots = np.arange(self.n_envs)
+        for slot in slots:
+            self._start(int(slot), None if episodes is None else episodes[slot])
+        obs, info = self._observe(slots)
+        info["done"] = np.zeros(self.n_envs, bool)
+        return obs, info
+
+    def step(self, actions) -> tuple[Observation, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        actions = np.asarray(actions)
+        if actions.shape != (self.n_envs,) or not np.issubdtype(actions.dtype, np.integer) \
+                or actions.min() < 0 or actions.max() >= N_ACTIONS:
+            raise ConfigError(f"actions must be {self.n_envs} ints in [0, {N_ACTIONS}), got {actions!r}")
+        if self._done.any():
+            raise M2HError(f"slots {np.flatnonzero(self._done).tolist()} have ended their episode "
+                           f"(or never started): call reset()")
+        cfg = self.config
+        before = self._distance()
+        for data, slots in self._groups(np.arange(self.n_envs)):   # rows = slots here
+            moving = slots[actions[slots] == MOVE_FORWARD]
+            self._node[moving] = data.scene.grid.forward[self._node[moving], self._heading[moving]]
+        self._heading = np.where(actions == TURN_LEFT, (self._heading + 1) % N_HEADINGS,
+                                 np.where(actions == TURN_RIGHT, (self._heading - 1) % N_HEADINGS,
+                                          self._heading))
+        self._step += 1
+        after = self._distance()
+        terminated = (actions == STOP) & self._far
+        success = terminated & (self._node == self._target)
+        truncated = ~terminated & (self._step >= self._max_steps)
+        reward = (cfg.distance_reward * (before - after) - cfg.step_penalty
+                  + cfg.success_reward * success).astype(np.float32)
+        self._done = terminated | truncated
+        obs, info = self._observe(np.arange(self.n_envs))
+        info.update(done=self._done.copy(), success=success)
+        if self.autoreset and self._done.any():
+            ended = np.flatnonzero(self._done)
+            final_info = {key: value.copy() for key, value in info.items()}
+            info["final_observation"] = {key: value.copy() for key, value in obs.items()}
+            info["final_info"] = final_info
+            for slot in ended:
+                self._start(int(slot), None)
+            fresh_obs, fresh_info = self._observe(ended)
+            for key, value in fresh_obs.items():
+                obs[key][ended] = value
+            for key in ("target_monaural", "target_binaural", "geodesic_distance", "at_target",
+                        "episode_index"):
+                info[key][ended] = fresh_info[key]
+        return obs, reward, terminated, truncated, info
+
+    def prepare(self, *, workers: int = 1, progress: bool = True) -> None:
+        """Build every RIR bank and render every camera view of the episodes' scenes now (before
+        timing, or before forking workers that would otherwise each fill their own caches)."""
+        for key in sorted({_scene_key(e) for e in self.episodes}):
+            data = self._scene_data(key)
+            data.bank.build(workers=workers, progress=progress)
+            if data.views is not None:
+                data.views.prerender()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+        self._scenes.clear()
+
+    # ------------------------------------------------------------------ internals
+    def _episode_for(self, slot: int, count: int) -> int:
+        """Index of the ``count``-th episode of ``slot``: slots take turns along a seeded order."""
+        epoch, position = divmod(count * self.n_envs + slot, len(self.episodes))
+        if not self.config.shuffle:
+            return position
+        return int(_permutation(len(self.episodes), self._seed, epoch)[position])
+
+    def _scene_data(self, key: tuple[str, str, int]) -> _SceneData:
+        data = self._scenes.get(key)
+        if data is None:
+            scene = _episode_scene(key)
+            views = CameraViews(scene, self.config.camera_config) if self.config.camera else None
+            bank = RirBank(scene, self.config.acoustics, cache_dir=self.rir_cache_dir, progress=False)
+            data = self._scenes[key] = _SceneData(scene, bank, views)
+        return data
+
+    def _start(self, slot: int, episode: Episode | int | None) -> None:
+        if episode is None:
+            index = self._episode_for(slot, int(self._started[slot]))
+            episode = self.episodes[index]
+        elif isinstance(episode, (int, np.integer)) and not isinstance(episode, bool):
+            if not 0 <= episode < len(self.episodes):
+                raise ConfigError(f"episode index {episode} is not in [0, {len(self.episodes)})")
+            index, episode = int(episode), self.episodes[int(episode)]
+        elif isinstance(episode, Episode):
+            index = self._index_of.get(episode, -1)   # -1: not from the list
+        else:
+            raise ConfigError(f"episode must be an Episode, an index or None, got {type(episode).__name__}")
+        self._started[slot] += 1
+        data = self._scene_data(_scene_key(episode))
+        n_sources, n_nodes = len(episode.source_nodes), data.scene.grid.n_nodes
+        if not 1 <= n_sources <= self.max_sources:
+            raise EpisodeError(f"episode {episode.episode_id} has {n_sources} sources; this env holds "
+                               f"1..{self.max_sources} (the most in its episode list)")
+        if not all(0 <= n < n_nodes for n in (episode.start_node, *episode.source_nodes)) \
+                or not 0 <= episode.start_heading < N_HEADINGS:
+            raise EpisodeError(f"episode {episode.episode_id} names nodes outside scene "
+                               f"{data.scene.scene_id} ({n_nodes} nodes) or a bad heading")
+        if episode.target_category not in TARGET_CATEGORIES:
+            raise EpisodeError(f"episode {episode.episode_id}: target category "
+                               f"{episode.target_category!r} is not one of {TARGET_CATEGORIES}")
+        clips = np.stack([self.library.clip(c) for c in episode.source_clips]).astype(np.float32)
+        self._current[slot], self._slot_scene[slot] = episode, data
+        self._episode_index[slot] = index
+        self._node[slot], self._heading[slot], self._step[slot] = episode.start_node, episode.start_heading, 0
+        self._target[slot], self._max_steps[slot] = episode.target_node, episode.max_steps
+        self._far[slot], self._done[slot] = episode.task == "far_target", False
+        self._target_class[slot] = TARGET_CATEGORIES.index(episode.target_category)
+        # Unused source rows keep a zero spectrum (they add nothing) at a valid node.
+        self._sources[slot] = episode.target_node
+        self._sources[slot, :n_sources] = episode.source_nodes
+        self._clip_spectra[slot] = 0
+        self._clip_spectra[slot, :n_sources] = sfft.rfft(clips, self._n_fft, axis=-1)
+        self._source_weight[slot] = 1.0 / n_sources
+        self._target_mono[slot] = clips[0]
+        self._rngs[slot] = np.random.default_rng([episode.seed, _NOISE_SALT])
+        self._pose_cache[slot].clear()
+
+    def _groups(self, slots: np.ndarray):
+        """(scene data, rows of ``slots``) for each scene the given slots are in."""
+        by_scene: dict[int, list[int]] = {}
+        for row, slot in enumerate(slots.tolist()):
+            by_scene.setdefault(id(self._slot_scene[slot]), []).append(row)
+        for rows in by_scene.values():
+            yield self._slot_scene[slots[rows[0]]], np.asarray(rows, np.int64)
+
+    def _distance(self) -> np.ndarray:
+        """(B,) geodesic metres from each slot's node to its target."""
+        out = np.zeros(self.n_envs, np.float32)
+        for data, slots in self._groups(np.arange(self.n_envs)):
+            out[slots] = data.scene.grid.geodesic[self._node[slots], self._target[slots]]
+        return out
+
+    def _observe(self, slots: np.ndarray) -> tuple[Observation, dict[str, Any]]:
+        """Observation and ground truth of the given slots at their current poses."""
+        n, cfg, cam, f = len(slots), self.config, self.config.camera_config, self.config.stft
+        node, heading, target = self._node[slots], self._heading[slots], self._target[slots]
+        audio = np.empty((n, 2, self.n_samples), np.float32)
+        target_binaural = np.empty((n, 2, self.n_samples), np.float32)
+        spectrogram = np.empty((n, 2, f.n_freq, f.n_frames), np.float32)
+        # Rows are independent, so contiguous chunks of them render in parallel threads (numpy and
+        # pocketfft release the GIL) with results that do not depend on the chunking.
+        chunks = [c for c in np.array_split(np.arange(n), min(self.threads, n)) if len(c)]
+        jobs = [self._pool.submit(self._render_audio, slots, c[0], c[-1] + 1, audio, target_binaural,
+                                  spectrogram) for c in chunks[1:]] if len(chunks) > 1 else []
+        positions = np.empty((n, 2), np.float64)
+        geodesic = np.empty(n, np.float32)
+        if cfg.camera:
+            rgb = np.empty((n, cam.height, cam.width, 3), np.uint8)
+            depth = np.empty((n, cam.height, cam.width, 1), np.float32)
+        for data, rows in self._groups(slots):
+            grid = data.scene.grid
+            positions[rows] = grid.positions[node[rows]]
+            geodesic[rows] = grid.geodesic[node[rows], target[rows]]
+            if cfg.camera:
+                rgb[rows], depth[rows, ..., 0] = data.views.views(node[rows], heading[rows])
+        self._render_audio(slots, chunks[0][0], chunks[0][-1] + 1, audio, target_binaural, spectrogram)
+        for job in jobs:
+            job.result()
+        pose = np.column_stack([positions, heading_angle(heading)]).astype(np.float32)
+        obs: Observation = {
+            "audio": audio, "spectrogram": spectrogram, "pose": pose, "node": node,
+            "heading": heading, "target_class": self._target_class[slots], "step": self._step[slots]}
+        if cfg.camera:
+            obs["rgb"], obs["depth"] = rgb, depth
+        info = {"target_monaural": self._target_mono[slots], "target_binaural": target_binaural,
+                "geodesic_distance": geodesic, "at_target": node == target,
+                "episode_index": self._episode_index[slots],
+                "done": np.zeros(n, bool), "success": np.zeros(n, bool)}
+        return obs, info
+
+    def _render_audio(self, all_slots: np.ndarray, start: int, stop: int, audio: np.ndarray,
+                      target_binaural: np.ndarray, spectrogram: np.ndarray) -> None:
+        """Fill rows start:stop of the outputs: mixture (+ noise), target alone, log-magnitude STFT.
+
+        Poses an episode already visited come from the slot's pose cache (same numbers); the
+        microphone noise is drawn afresh at every step all the same.
+        """
+        cfg, noisy = self.config, self.config.mic_noise > 0
+        rows = np.arange(start, stop)
+        keys = list(zip(self._node[all_slots[rows]].tolist(), self._heading[all_slots[rows]].tolist()))
+        missed = []
+        for row, key in zip(rows.tolist(), keys):
+            cached = self._pose_cache[all_slots[row]].get(key)
+            self._renders[all_slots[row], int(cached is None)] += 1   # each slot has one thread
+            if cached is None:
+                missed.append(row)
+                continue
+            self._pose_cache[all_slots[row]].move_to_end(key)
+            target_binaural[row], audio[row] = cached[:2]
+            if not noisy:
+                spectrogram[row] = cached[2]
+        missed = np.asarray(missed, np.int64)
+        index = _as_slice(missed)   # views instead of copies in the usual all-rows case
+        if len(missed):
+            target_binaural[index], audio[index] = self._convolve(all_slots[missed])
+        clean = {row: (target_binaural[row].copy(), audio[row].copy())
+                 for row in missed.tolist()} if self.pose_cache else {}
+        if noisy:
+            rms = np.sqrt(np.mean(np.square(audio[start:stop]), axis=(1, 2)))
+            for row in rows.tolist():
+                noise = self._rngs[all_slots[row]].standard_normal((2, self.n_samples), dtype=np.float32)
+                audio[row] += (cfg.mic_noise * rms[row - start]) * noise
+        fresh = slice(start, stop) if noisy else index
+        if noisy or len(missed):
+            # log(1 + |X|) as log(|X| + 1): numpy's float32 log1p is ~5x slower than its log; they
+            # differ by < 1e-6 here.
+            magnitude = np.abs(stft(audio[fresh], config=cfg.stft))
+            magnitude += 1.0
+            spectrogram[fresh] = np.log(magnitude, out=magnitude)
+        for row, key in zip(rows.tolist(), keys):
+            if row in clean:
+                cache = self._pose_cache[all_slots[row]]
+                cache[key] = clean[row] if noisy else (*clean[row], spectrogram[row].copy())
+                if len(cache) > self.pose_cache:
+                    cache.popitem(last=False)
+
+    def _convolve(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Target alone (n, 2, S) and clean mixture (n, 2, S) of the given slots at their poses."""
+        k, n, taps = self.max_sources, self.n_samples, self.config.acoustics.n_taps
+        # Zero-padded to the FFT length here, so the FFT does not copy them once more.
+        rirs = np.zeros((len(slots), k, 2, self._n_fft), np.float32)
+        for data, rows in self._groups(slots):
+            members = slots[rows]
+            rirs[rows, ..., :taps] = data.bank.rirs(
+                self._sources[members].ravel(), np.repeat(self._node[members], k),
+                np.repeat(self._heading[members], k)).reshape(len(rows), k, 2, taps)
+        # Convolution in the frequency domain; by linearity the mixture needs one inverse FFT.
+        spectra = sfft.rfft(rirs, axis=-1, overwrite_x=True)
+        spectra *= self._clip_spectra[_as_slice(slots)][:, :, None, :]
+        mix_spectrum = spectra.sum(axis=1)
+        mix_spectrum *= self._source_weight[slots, None, None]
+        target = sfft.irfft(spectra[:, 0], self._n_fft, axis=-1, overwrite_x=True)[..., :n]
+        return target, sfft.irfft(mix_spectrum, self._n_fft, axis=-1, overwrite_x=True)[..., :n]
+
+
+def _as_slice(rows: np.ndarray) -> slice | np.ndarray:
+    """``rows`` as a slice when they are consecutive (indexing then gives views, not copies)."""
+    if len(rows) and rows[-1] - rows[0] == len(rows) - 1:
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
+@lru_cache(maxsize=8)
+def _permutation(n: int, seed: int, epoch: int) -> np.ndarray:
+    return np.random.default_rng([seed, epoch]).permutation(n)
+
+
+def _first(batch: dict[str, Any]) -> dict[str, Any]:
+    """Slot 0 of every batched entry (nested dicts too)."""
+    return {key: _first(value) if isinstance(value, dict) else value[0] for key, value in batch.items()}
+
+
+class MoveHearEnv(gymnasium.Env):
+    """Single-env Gymnasium API over a one-slot ``BatchEnv`` (same numbers, no auto-reset).
+
+    ``reset(seed=..., options={"episode": Episode or index})`` plays a given episode; without it the
+    next one of the seeded order. Actions: Discrete(4) = STOP, MOVE_FORWARD, TURN_LEFT, TURN_RIGHT.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, config: EnvConfig = EnvConfig(),
+                 rir_cache_dir: Path | None = None, threads: int = 1, pose_cache: int = 32) -> None:
+        self.batch = BatchEnv(episodes, library, n_envs=1, config=config, rir_cache_dir=rir_cache_dir,
+                              autoreset=False, threads=threads, pose_cache=pose_cache)
+        self.action_space = spaces.Discrete(N_ACTIONS)
+        self.observation_space = self.batch.single_observation_space()
+
+    @property
+    def episode(self) -> Episode | None:
+        return self.batch.current_episodes[0]
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[Observation, dict[str, Any]]:
+        super().reset(seed=seed)
+        unknown = set(options or {}) - {"episode"}
+        if unknown:
+            raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; known: ['episode']")
+        episode = (options or {}).get("episode")
+        obs, info = self.batch.reset(seed=seed, episodes=None if episode is None else [episode])
+        return _first(obs), _first(info)
+
+    def step(self, action) -> tuple[Observation, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.batch.step(np.asarray([action], np.int64))
+        return _first(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), _first(info)
+
+    def close(self) -> None:
+        self.batch.close()

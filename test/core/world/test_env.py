@@ -1,0 +1,240 @@
+"""The batch environment and its Gymnasium wrapper on small scenes with fast acoustics."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from m2h_ros.core.audio.metrics import si_sdr
+from m2h_ros.core.audio.stft import rebuild_ground_truth_phase, stft
+from m2h_ros.core.world.acoustics import render_binaural
+from m2h_ros.core.world.camera import CameraConfig
+from m2h_ros.core.world.env import BatchEnv, EnvConfig, MoveHearEnv
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, EpisodeConfig, generate_episodes
+from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.errors import ConfigError, M2HError
+
+SMALL = dict(scene_preset="small", min_source_distance=3.0)
+
+
+@pytest.fixture(scope="module")
+def config(fast_acoustics):
+    return EnvConfig(acoustics=fast_acoustics, camera_config=CameraConfig(width=32, height=24))
+
+
+@pytest.fixture(scope="module")
+def near_episodes(small_library):
+    return generate_episodes(EpisodeConfig(count=9, seed=4, near_radius=2.0, **SMALL), small_library)
+
+
+@pytest.fixture(scope="module")
+def far_episodes(small_library):
+    return generate_episodes(EpisodeConfig(task="far_target", count=6, seed=1, far_min_distance=3.0,
+                                           max_steps=30, **SMALL), small_library)
+
+
+def make_env(episodes, library, rir_cache, config, **kwargs):
+    return MoveHearEnv(episodes, library, config=config, rir_cache_dir=rir_cache, **kwargs)
+
+
+def actions_to(grid, node, heading, goal):
+    """Turns and forward moves along a shortest path from (node, heading) to ``goal``."""
+    actions = []
+    path = grid.shortest_path(node, goal)
+    for here, there in zip(path, path[1:]):
+        wanted = next(h for h in range(4) if grid.forward[here, h] == there)
+        while heading != wanted:
+            actions.append(TURN_LEFT)
+            heading = (heading + 1) % 4
+        actions.append(MOVE_FORWARD)
+    return actions
+
+
+def test_config_validation():
+    with pytest.raises(ConfigError, match="mic_noise"):
+        EnvConfig(mic_noise=-0.1)
+    with pytest.raises(ConfigError, match="camera"):
+        EnvConfig(camera="yes")
+    with pytest.raises(ConfigError, match="step_penalty"):
+        EnvConfig(step_penalty=float("nan"))
+    with pytest.raises(ConfigError, match="acoustics"):
+        EnvConfig(acoustics={"rir_length": 0.5})
+    with pytest.raises(ConfigError, match="seed"):
+        EnvConfig(seed=-1)
+
+
+def test_observation_layout_and_actions_follow_grid(near_episodes, small_library, rir_cache, config):
+    env = make_env(near_episodes, small_library, rir_cache, config)
+    episode = near_episodes[0]
+    obs, info = env.reset(options={"episode": episode})
+    assert env.observation_space.contains(obs)
+    assert obs["audio"].shape == (2, 16000) and obs["spectrogram"].shape == (2, 512, 32)
+    assert obs["rgb"].shape == (24, 32, 3) and obs["depth"].shape == (24, 32, 1)
+    assert obs["node"] == episode.start_node and obs["heading"] == episode.start_heading
+    assert obs["target_class"] == ("speech", "music").index(episode.target_category)
+    np.testing.assert_array_equal(info["target_monaural"], small_library.clip(episode.source_clips[0]))
+    grid = env.batch.scene_of(0).grid
+    rng = np.random.default_rng(0)
+    node, heading = episode.start_node, episode.start_heading
+    moved = 0
+    for step in range(1, 20):
+        action = int(rng.choice([MOVE_FORWARD, MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, STOP]))
+        obs, reward, terminated, truncated, info = env.step(action)
+        if action == MOVE_FORWARD:
+            moved += grid.forward[node, heading] != node
+            node = grid.forward[node, heading]
+        heading = {TURN_LEFT: (heading + 1) % 4, TURN_RIGHT: (heading - 1) % 4}.get(action, heading)
+        assert (obs["node"], obs["heading"], obs["step"]) == (node, heading, step)
+        assert not terminated  # Stop is a no-op in near-target episodes
+        np.testing.assert_allclose(obs["pose"], [*grid.positions[node], heading * np.pi / 2], rtol=1e-6)
+        assert info["geodesic_distance"] == grid.geodesic[node, episode.target_node]
+        assert env.observation_space.contains(obs)
+    assert moved >= 1
+
+
+def test_reward_follows_geodesic_change_and_truncation(near_episodes, small_library, rir_cache, config):
+    env = make_env(near_episodes, small_library, rir_cache, dataclasses.replace(config, camera=False))
+    obs, info = env.reset(options={"episode": near_episodes[1]})
+    assert "rgb" not in obs and "rgb" not in env.observation_space.spaces
+    rng = np.random.default_rng(1)
+    signs = set()
+    for step in range(1, near_episodes[1].max_steps + 1):
+        before = info["geodesic_distance"]
+        obs, reward, terminated, truncated, info = env.step(int(rng.choice([1, 1, 2, 3])))
+        gained = before - info["geodesic_distance"]
+        assert reward == pytest.approx(0.25 * gained - 0.01, abs=1e-6)
+        signs.add(np.sign(gained))
+        assert truncated == (step == near_episodes[1].max_steps) and not terminated
+    assert {-1.0, 1.0} <= signs
+    with pytest.raises(M2HError, match="reset"):
+        env.step(1)
+
+
+def test_stop_ends_far_target_episodes(far_episodes, small_library, rir_cache, config):
+    env = make_env(far_episodes, small_library, rir_cache, dataclasses.replace(config, camera=False))
+    episode = far_episodes[0]
+    obs, info = env.reset(options={"episode": episode})
+    grid = env.batch.scene_of(0).grid
+    for action in actions_to(grid, episode.start_node, episode.start_heading, episode.target_node):
+        obs, reward, terminated, truncated, info = env.step(action)
+        expected = 0.25 - 0.01 if action == MOVE_FORWARD else -0.01
+        assert reward == pytest.approx(expected, abs=1e-6) and not (terminated or truncated)
+    assert info["at_target"] and info["geodesic_distance"] == 0
+    obs, reward, terminated, truncated, info = env.step(STOP)
+    assert terminated and not truncated and info["success"]
+    assert reward == pytest.approx(10.0 - 0.01, abs=1e-6)
+    # Stop away from the target ends the episode without the bonus.
+    env.reset(options={"episode": episode})
+    obs, reward, terminated, truncated, info = env.step(STOP)
+    assert terminated and not info["success"] and reward == pytest.approx(-0.01, abs=1e-6)
+
+
+def test_mixture_is_mean_of_source_renders(near_episodes, small_library, rir_cache, config):
+    env = make_env(near_episodes, small_library, rir_cache, config)
+    episode = near_episodes[2]
+    obs, info = env.reset(options={"episode": episode})
+    obs, *_, info = env.step(MOVE_FORWARD)
+    bank = RirBank(env.batch.scene_of(0), config.acoustics, cache_dir=rir_cache, progress=False)
+    k = len(episode.source_nodes)
+    rirs = bank.rirs(episode.source_nodes, [obs["node"]] * k, [obs["heading"]] * k)
+    clips = np.stack([small_library.clip(c) for c in episode.source_clips])
+    renders = render_binaural(clips, rirs)
+    scale = np.abs(renders).max()
+    np.testing.assert_allclose(obs["audio"], renders.mean(axis=0), atol=1e-5 * scale)
+    np.testing.assert_allclose(info["target_binaural"], renders[0], atol=1e-5 * scale)
+    assert np.abs(renders[1]).max() > 0.01 * scale   # the distractor is really in the mixture
+
+
+def test_mic_noise_has_the_configured_relative_rms(near_episodes, small_library, rir_cache, config):
+    clean_env = make_env(near_episodes, small_library, rir_cache, config)
+    noisy_env = make_env(near_episodes, small_library, rir_cache, dataclasses.replace(config, mic_noise=0.1))
+    for env in (clean_env, noisy_env):
+        env.reset(options={"episode": near_episodes[3]})
+    for _ in range(3):
+        clean, *_ = clean_env.step(TURN_LEFT)
+        noisy, *_ = noisy_env.step(TURN_LEFT)
+        ratio = np.sqrt(np.mean((noisy["audio"] - clean["audio"]) ** 2) / np.mean(clean["audio"] ** 2))
+        assert ratio == pytest.approx(0.1, rel=0.03)
+        assert not np.array_equal(noisy["spectrogram"], clean["spectrogram"])
+
+
+def test_same_seed_same_run_and_seeded_order(near_episodes, small_library, rir_cache, config):
+    def run(seed):
+        env = BatchEnv(near_episodes, small_library, n_envs=3, config=dataclasses.replace(config, seed=seed),
+                       rir_cache_dir=rir_cache)
+        obs, _ = env.reset()
+        rng = np.random.default_rng(7)
+        frames, order, ended = [obs], [], 0
+        for _ in range(25):   # past the 20-step episodes: every slot auto-resets once
+            obs, reward, terminated, truncated, info = env.step(rng.integers(4, size=3))
+            frames.append(dict(obs, reward=reward))
+            ended += info["done"].sum()
+            if info["done"].any():
+                assert (info["final_observation"]["step"][info["done"]] == 20).all()
+                assert (obs["step"][info["done"]] == 0).all()
+            order.append(info["episode_index"])
+        assert ended == 3
+        return frames, np.array(order)
+
+    (a, order_a), (b, order_b), (_, order_c) = run(5), run(5), run(6)
+    np.testing.assert_array_equal(order_a, order_b)
+    for frame_a, frame_b in zip(a, b):
+        for key in frame_a:
+            np.testing.assert_array_equal(frame_a[key], frame_b[key])
+    assert len(set(order_a[-1]) | set(order_a[0])) == 6   # slots take distinct episodes
+    assert not np.array_equal(order_a, order_c)
+
+
+def test_batch_equals_single_envs_without_pose_cache(near_episodes, small_library, rir_cache, config):
+    config = dataclasses.replace(config, mic_noise=0.05)
+    chosen = near_episodes[4:7]
+    batch = BatchEnv(near_episodes, small_library, n_envs=3, config=config, rir_cache_dir=rir_cache,
+                     threads=2)
+    singles = [MoveHearEnv(near_episodes, small_library, config=config, rir_cache_dir=rir_cache,
+                           pose_cache=0) for _ in chosen]
+    batch_obs, _ = batch.reset(episodes=chosen)
+    single_obs = [env.reset(options={"episode": e})[0] for env, e in zip(singles, chosen)]
+    rng = np.random.default_rng(3)
+    poses, revisits = set(), 0
+    for _ in range(10):
+        for i, obs in enumerate(single_obs):
+            for key, value in obs.items():
+                np.testing.assert_array_equal(batch_obs[key][i], value, err_msg=key)
+            revisits += (i, int(obs["node"]), int(obs["heading"])) in poses
+            poses.add((i, int(obs["node"]), int(obs["heading"])))
+        actions = rng.choice([STOP, MOVE_FORWARD, TURN_LEFT, TURN_RIGHT], size=3)
+        batch_obs, *_ = batch.step(actions)
+        single_obs = [env.step(int(a))[0] for env, a in zip(singles, actions)]
+    assert revisits >= 3   # the batch env served those from its pose cache
+
+
+def test_gymnasium_env_checker(near_episodes, small_library, rir_cache, config):
+    check_env(make_env(near_episodes, small_library, rir_cache, config), skip_render_check=True)
+
+
+def test_mixture_si_sdr_is_higher_at_the_target(near_episodes, small_library, rir_cache, config):
+    env = make_env(near_episodes, small_library, rir_cache, dataclasses.replace(config, camera=False))
+    at_target, far = [], []
+    for episode in near_episodes[:6]:
+        env.reset(options={"episode": episode})
+        far_node = int(np.argmax(env.batch.scene_of(0).grid.geodesic[episode.target_node]))
+        for start, scores in ((episode.target_node, at_target), (far_node, far)):
+            obs, info = env.reset(options={"episode": dataclasses.replace(episode, start_node=start)})
+            # Scored as the paper does: the magnitude (here the raw mixture's) with the target's phase,
+            # since the waveform itself lags the dry clip by the propagation delay.
+            estimate = rebuild_ground_truth_phase(np.abs(stft(obs["audio"].mean(axis=0))), info["target_monaural"])
+            scores.append(si_sdr(estimate, info["target_monaural"]))
+    assert np.mean(at_target) > np.mean(far) + 3.0, (at_target, far)
+
+
+def test_bad_actions_and_episode_options(near_episodes, small_library, rir_cache, config):
+    env = BatchEnv(near_episodes, small_library, n_envs=2, config=config, rir_cache_dir=rir_cache)
+    with pytest.raises(M2HError, match="reset"):
+        env.step(np.array([1, 1]))
+    env.reset(episodes=[0, near_episodes[1]])
+    with pytest.raises(ConfigError, match="actions"):
+        env.step(np.array([1, 4]))
+    with pytest.raises(ConfigError, match="episode index"):
+        env.reset(episodes=[0, 99])
+    assert [e.episode_id for e in env.current_episodes][:1] == [near_episodes[0].episode_id]
