@@ -24,6 +24,7 @@ setup(
     description="Active audio-visual source separation (Move2Hear) as a ROS 2 node suite",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES],
+        "console_scripts": [f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES]
+        + ["m2h-separate = m2h_ros.separate_cli:main"],
     },
 )

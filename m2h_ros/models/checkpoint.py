@@ -1,0 +1,179 @@
+"""Self-describing checkpoints: the file says what model it holds and how to rebuild it.
+
+A checkpoint is a ``torch.save``-d dict of plain types (loaded with ``weights_only=True``):
+
+  format       int, CHECKPOINT_FORMAT
+  kind         str, e.g. SEPARATOR_KIND
+  model_args   dict, the model's configuration dataclass as a dict
+  state_dict   dict[str, Tensor]
+  metadata     dict of JSON-like values (training run, data, seed, ...)
+  + kind-specific entries; separators add ``stft`` (StftConfig as a dict) and ``classes`` (list[str]).
+
+Every problem (missing or corrupt file, wrong kind, settings or tensor shapes that differ from what
+the caller expects) raises CheckpointError with a message naming the file and what differs.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig
+from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.models.separator import Separator, SeparatorConfig
+from m2h_ros.paths import PACKAGE_DIR
+
+CHECKPOINT_FORMAT = 1
+SEPARATOR_KIND = "m2h_separator"
+DEFAULT_SEPARATOR_CHECKPOINT = PACKAGE_DIR / "models" / "default" / "separator_compact.pt"
+# The pretraining entry point that writes DEFAULT_SEPARATOR_CHECKPOINT (named in error messages).
+DEFAULT_SEPARATOR_BUILD_COMMAND = "python -m m2h_ros.training.pretrain_separator"
+
+_PLAIN_TYPES = (str, int, float, bool, type(None))
+
+
+def _check_plain(value: Any, where: str) -> None:
+    """Metadata must survive ``torch.load(weights_only=True)``: JSON-like values only."""
+    if isinstance(value, _PLAIN_TYPES):
+        return
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_plain(item, f"{where}[{i}]")
+        return
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise ConfigError(f"checkpoint {where} has a non-string key {key!r}")
+            _check_plain(item, f"{where}.{key}")
+        return
+    raise ConfigError(f"checkpoint {where} holds a {type(value).__name__}; use str/int/float/bool/list/dict")
+
+
+def write_checkpoint(path: str | os.PathLike, *, kind: str, model_args: Mapping[str, Any],
+                     state_dict: Mapping[str, torch.Tensor], metadata: Mapping[str, Any] | None = None,
+                     **extra: Any) -> Path:
+    """Write a checkpoint atomically (temporary file + rename); returns the path."""
+    payload = {"format": CHECKPOINT_FORMAT, "kind": kind, "model_args": dict(model_args),
+               "metadata": dict(metadata or {}), **extra}
+    _check_plain(payload, "checkpoint")
+    payload["state_dict"] = {name: tensor.detach().cpu() for name, tensor in state_dict.items()}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def read_checkpoint(path: str | os.PathLike, *, kind: str, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Load and check the envelope of a checkpoint of the given kind."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} not found")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # torch raises many types for truncated / foreign files
+        raise CheckpointError(f"checkpoint {path} is corrupt or not a torch checkpoint: {exc}") from exc
+    if not isinstance(payload, dict):
+        raise CheckpointError(f"checkpoint {path} holds a {type(payload).__name__}, not a checkpoint dict")
+    for key in ("format", "kind", "model_args", "state_dict", "metadata"):
+        if key not in payload:
+            raise CheckpointError(f"checkpoint {path} lacks the entry {key!r}")
+    if payload["format"] != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"checkpoint {path} has format {payload['format']}, this code reads {CHECKPOINT_FORMAT}")
+    if payload["kind"] != kind:
+        raise CheckpointError(f"checkpoint {path} holds a {payload['kind']!r} model, expected {kind!r}")
+    return payload
+
+
+def _differences(prefix: str, found: Mapping[str, Any], expected: Mapping[str, Any]) -> list[str]:
+    return [f"{prefix}.{key} is {found.get(key)!r}, expected {expected.get(key)!r}"
+            for key in sorted(set(found) | set(expected)) if found.get(key) != expected.get(key)]
+
+
+def load_state_checked(module: nn.Module, state_dict: Mapping[str, torch.Tensor], *, path: Path) -> None:
+    """``load_state_dict`` with a CheckpointError naming missing/unexpected tensors and shape changes."""
+    own = module.state_dict()
+    problems = [f"missing {name}" for name in own if name not in state_dict]
+    problems += [f"unexpected {name}" for name in state_dict if name not in own]
+    problems += [f"{name} has shape {tuple(state_dict[name].shape)}, model expects {tuple(t.shape)}"
+                 for name, t in own.items() if name in state_dict and state_dict[name].shape != t.shape]
+    if problems:
+        shown = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
+        raise CheckpointError(f"checkpoint {path} does not fit the model: {shown}")
+    module.load_state_dict(state_dict)
+
+
+@dataclass(frozen=True)
+class LoadedSeparator:
+    """A separator rebuilt from its checkpoint (in eval mode) with the settings it was trained with."""
+
+    separator: Separator
+    config: SeparatorConfig
+    stft: StftConfig
+    classes: tuple[str, ...]
+    path: Path
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def class_index(self, name: str) -> int:
+        if name not in self.classes:
+            raise ConfigError(f"unknown target class {name!r}; this separator knows {list(self.classes)}")
+        return self.classes.index(name)
+
+
+def save_separator(path: str | os.PathLike, separator: Separator, *, classes: Sequence[str],
+                   stft_config: StftConfig = DEFAULT_STFT, metadata: Mapping[str, Any] | None = None) -> Path:
+    """Save a separator with its model args, STFT settings, target classes and training metadata."""
+    classes = list(classes)
+    if not classes or len(set(classes)) != len(classes) or not all(isinstance(c, str) and c for c in classes):
+        raise ConfigError(f"separator classes must be distinct non-empty names, got {classes!r}")
+    separator.config.check_stft(stft_config)
+    return write_checkpoint(path, kind=SEPARATOR_KIND, model_args=separator.config.to_dict(),
+                            state_dict=separator.state_dict(), metadata=metadata,
+                            stft=stft_config.to_dict(), classes=classes)
+
+
+def load_separator(path: str | os.PathLike, *, expected_config: SeparatorConfig | None = None,
+                   expected_stft: StftConfig | None = None, expected_classes: Sequence[str] | None = None,
+                   map_location: str | torch.device = "cpu") -> LoadedSeparator:
+    """Rebuild a Separator from ``path``; ``expected_*`` (when given) must match the stored settings."""
+    path = Path(path)
+    if not path.is_file() and path.resolve() == DEFAULT_SEPARATOR_CHECKPOINT.resolve():
+        raise CheckpointError(f"default separator checkpoint {path} not found; build it with "
+                              f"`{DEFAULT_SEPARATOR_BUILD_COMMAND}`")
+    payload = read_checkpoint(path, kind=SEPARATOR_KIND, map_location=map_location)
+    for key in ("stft", "classes"):
+        if key not in payload:
+            raise CheckpointError(f"checkpoint {path} lacks the entry {key!r}")
+    try:
+        config = SeparatorConfig.from_dict(payload["model_args"])
+        stft_config = StftConfig.from_dict(payload["stft"])
+        config.check_stft(stft_config)
+    except (ConfigError, TypeError) as exc:
+        raise CheckpointError(f"checkpoint {path} has invalid settings: {exc}") from exc
+    classes = tuple(payload["classes"])
+    problems: list[str] = []
+    if expected_config is not None:
+        problems += _differences("model_args", config.to_dict(), expected_config.to_dict())
+    if expected_stft is not None:
+        problems += _differences("stft", stft_config.to_dict(), expected_stft.to_dict())
+    if expected_classes is not None and classes != tuple(expected_classes):
+        problems.append(f"classes are {list(classes)}, expected {list(expected_classes)}")
+    if problems:
+        raise CheckpointError(f"checkpoint {path} settings differ: " + "; ".join(problems))
+    separator = Separator(config)
+    load_state_checked(separator, payload["state_dict"], path=path)
+    separator.to(map_location).eval()
+    return LoadedSeparator(separator, config, stft_config, classes, path, payload["metadata"])

@@ -1,0 +1,119 @@
+"""Separator checkpoints: round trip, self-rebuilding, and clear errors for every kind of mismatch."""
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig
+from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.models.checkpoint import (
+    DEFAULT_SEPARATOR_BUILD_COMMAND,
+    DEFAULT_SEPARATOR_CHECKPOINT,
+    load_separator,
+    read_checkpoint,
+    save_separator,
+    write_checkpoint,
+)
+from m2h_ros.models.separator import Separator, SeparatorConfig
+
+TINY = SeparatorConfig(unet_channels=(4, 4, 8, 8, 8), refiner_hidden=4)
+CLASSES = ("speech", "music")
+
+
+@pytest.fixture
+def saved(tmp_path: Path) -> tuple[Path, Separator]:
+    torch.manual_seed(0)
+    model = Separator(TINY)
+    # give BatchNorm non-default running statistics so they must round-trip too
+    model.train()
+    with torch.no_grad():
+        model(torch.rand(4, 32, 32, 32) * 5, torch.tensor([0, 1, 0, 1]))
+    model.eval()
+    path = save_separator(tmp_path / "ckpt" / "sep.pt", model, classes=CLASSES,
+                          metadata={"steps": 12, "mixture_power": 0.6, "scenes": ["train_000"]})
+    return path, model
+
+
+def test_round_trip_rebuilds_identical_model(saved: tuple[Path, Separator]) -> None:
+    path, model = saved
+    loaded = load_separator(path, expected_config=TINY, expected_stft=DEFAULT_STFT, expected_classes=CLASSES)
+    assert loaded.config == TINY and loaded.stft == DEFAULT_STFT and loaded.classes == CLASSES
+    assert loaded.metadata == {"steps": 12, "mixture_power": 0.6, "scenes": ["train_000"]}
+    assert not loaded.separator.training
+    assert loaded.class_index("music") == 1
+    x, c = torch.rand(2, 32, 32, 32) * 5, torch.tensor([1, 0])
+    with torch.no_grad():
+        for a, b in zip(model(x, c), loaded.separator(x, c), strict=True):
+            torch.testing.assert_close(a, b, rtol=0, atol=0)
+    with pytest.raises(ConfigError, match="unknown target class 'noise'"):
+        loaded.class_index("noise")
+    assert not list(path.parent.glob("*.tmp"))  # atomic write leaves no temporary file
+
+
+def test_missing_and_corrupt_files(tmp_path: Path, saved: tuple[Path, Separator]) -> None:
+    with pytest.raises(CheckpointError, match="not found"):
+        load_separator(tmp_path / "absent.pt")
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(CheckpointError, match="corrupt"):
+        load_separator(garbage)
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(saved[0].read_bytes()[:2000])
+    with pytest.raises(CheckpointError, match="corrupt"):
+        load_separator(truncated)
+    plain = tmp_path / "plain.pt"
+    torch.save([1, 2, 3], plain)
+    with pytest.raises(CheckpointError, match="list"):
+        load_separator(plain)
+
+
+def test_default_checkpoint_missing_names_the_build_command(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    fake_default = tmp_path / "default" / "separator_compact.pt"
+    monkeypatch.setattr("m2h_ros.models.checkpoint.DEFAULT_SEPARATOR_CHECKPOINT", fake_default)
+    with pytest.raises(CheckpointError, match="pretrain_separator"):
+        load_separator(fake_default)
+    assert DEFAULT_SEPARATOR_CHECKPOINT.name == "separator_compact.pt"
+    assert "pretrain_separator" in DEFAULT_SEPARATOR_BUILD_COMMAND
+
+
+def test_wrong_kind(tmp_path: Path) -> None:
+    path = write_checkpoint(tmp_path / "policy.pt", kind="m2h_policy", model_args={"hidden": 512},
+                            state_dict={"w": torch.zeros(2)})
+    assert read_checkpoint(path, kind="m2h_policy")["model_args"] == {"hidden": 512}
+    with pytest.raises(CheckpointError, match="'m2h_policy' model, expected 'm2h_separator'"):
+        load_separator(path)
+
+
+def test_settings_mismatch_names_the_fields(saved: tuple[Path, Separator]) -> None:
+    path, _ = saved
+    with pytest.raises(CheckpointError, match=r"stft.hop_length is 512, expected 256"):
+        load_separator(path, expected_stft=StftConfig(hop_length=256))
+    with pytest.raises(CheckpointError, match=r"model_args.unet_channels is \[4, 4, 8, 8, 8\]"):
+        load_separator(path, expected_config=SeparatorConfig())
+    with pytest.raises(CheckpointError, match=r"classes are \['speech', 'music'\], expected \['music', 'speech'\]"):
+        load_separator(path, expected_classes=("music", "speech"))
+
+
+def test_shape_mismatch_names_the_tensor(tmp_path: Path, saved: tuple[Path, Separator]) -> None:
+    payload = torch.load(saved[0], weights_only=True)
+    payload["state_dict"]["refiner.body.0.weight"] = torch.zeros(3, 32, 3, 3)
+    del payload["state_dict"]["refiner.body.1.bias"]
+    broken = tmp_path / "broken.pt"
+    torch.save(payload, broken)
+    with pytest.raises(CheckpointError) as info:
+        load_separator(broken)
+    message = str(info.value)
+    assert "missing refiner.body.1.bias" in message
+    assert "refiner.body.0.weight has shape (3, 32, 3, 3), model expects (4, 32, 3, 3)" in message
+
+
+def test_invalid_stored_settings_and_metadata(tmp_path: Path) -> None:
+    path = write_checkpoint(tmp_path / "bad.pt", kind="m2h_separator", model_args={"unet_channels": [1, 2]},
+                            state_dict={}, stft=DEFAULT_STFT.to_dict(), classes=["speech"])
+    with pytest.raises(CheckpointError, match="invalid settings.*unet_channels"):
+        load_separator(path)
+    with pytest.raises(ConfigError, match="metadata.when"):
+        save_separator(tmp_path / "x.pt", Separator(TINY), classes=CLASSES, metadata={"when": object()})
+    with pytest.raises(ConfigError, match="classes"):
+        save_separator(tmp_path / "x.pt", Separator(TINY), classes=["speech", "speech"])
