@@ -86,14 +86,19 @@ def _draw_path(ax: Axes, scene: Scene, path) -> None:
 
 
 def plot_episode(scene: Scene, *, sources, path, si_sdr=None, out_png) -> Path:
-    """Top-down episode picture; with ``si_sdr`` (dB per step) a trace subplot beside it."""
+    """Top-down episode picture; with ``si_sdr`` (dB per step, or a mapping label -> dB per step
+    for several estimates) a trace subplot beside it."""
     with_trace = si_sdr is not None
     fig = Figure(figsize=(11 if with_trace else 6.5, 5.5), layout="constrained")
     axes = fig.subplots(1, 2, width_ratios=[1.3, 1]) if with_trace else [fig.subplots()]
     draw_scene(axes[0], scene, sources=sources, path=path)
     if with_trace:
-        values = np.asarray(si_sdr, dtype=float).reshape(-1)
-        axes[1].plot(np.arange(len(values)), values, marker=".", color="#1f77b4")
+        traces = si_sdr if isinstance(si_sdr, Mapping) else {None: si_sdr}
+        for label, series in traces.items():
+            values = np.asarray(series, dtype=float).reshape(-1)
+            axes[1].plot(np.arange(len(values)), values, marker=".", label=label)
+        if len(traces) > 1 or None not in traces:
+            axes[1].legend(fontsize=8)
         axes[1].set_xlabel("step")
         axes[1].set_ylabel("SI-SDR (dB)")
         axes[1].grid(alpha=0.3)
