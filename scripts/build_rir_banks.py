@@ -8,9 +8,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
-from m2h_ros.core.world.rir_bank import RirBank  # noqa: E402
-from m2h_ros.core.world.scene import PRESETS, SCENE_SPLITS, load_split  # noqa: E402
+from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.scene import PRESETS, SCENE_SPLITS, load_split
 
 
 def main(argv: list[str] | None = None) -> None:

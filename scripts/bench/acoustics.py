@@ -14,15 +14,15 @@ import time
 
 import numpy as np
 
-from m2h_ros.core.world.acoustics import (  # noqa: E402
+from m2h_ros.core.world.acoustics import (
     BAND_CENTRES,
     AcousticsConfig,
     mix,
     render_binaural,
     room_rt60,
 )
-from m2h_ros.core.world.rir_bank import RirBank  # noqa: E402
-from m2h_ros.core.world.scene import SCENE_SPLITS, load_split  # noqa: E402
+from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.scene import SCENE_SPLITS, load_split
 
 
 def _timed(fn, repeats: int) -> float:

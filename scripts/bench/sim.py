@@ -21,23 +21,20 @@ import importlib.util
 import multiprocessing
 import os
 import resource
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))   # run from a source checkout
-
-from m2h_ros.core.audio.metrics import si_sdr  # noqa: E402
-from m2h_ros.core.audio.stft import rebuild_ground_truth_phase, stft  # noqa: E402
-from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig  # noqa: E402
-from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
-from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
-from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
-from m2h_ros.core.world.rir_bank import RirBank  # noqa: E402
-from m2h_ros.core.world.scene import load_split  # noqa: E402
-from m2h_ros.errors import CacheError  # noqa: E402
+from m2h_ros.core.audio.metrics import si_sdr
+from m2h_ros.core.audio.stft import rebuild_ground_truth_phase, stft
+from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
+from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.env import BatchEnv, EnvConfig
+from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
+from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.scene import load_split
+from m2h_ros.errors import CacheError
 
 SPLIT = "test"
 
