@@ -16,11 +16,10 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 
-from m2h_ros.core.sounds import SPLITS, SoundLibrary, SoundLibraryConfig  # noqa: E402
-from m2h_ros.core.sounds.sources import sources_dir  # noqa: E402
-from m2h_ros.errors import CacheError  # noqa: E402
+from m2h_ros.core.sounds import SPLITS, SoundLibrary, SoundLibraryConfig
+from m2h_ros.core.sounds.sources import sources_dir
+from m2h_ros.errors import CacheError
 
 
 def main() -> int:
