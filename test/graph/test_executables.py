@@ -2,6 +2,7 @@
 `ros2 run` looks, starts with its params file, and exits cleanly on SIGINT; bad params fail loudly."""
 
 import os
+import subprocess
 import time
 from pathlib import Path
 
@@ -67,3 +68,10 @@ def test_invalid_choice_is_reported(processes):
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == 2
     assert "SimConfig.task = 'bogus': must be one of 'near_target', 'far_target'" in err
+
+
+def test_m2h_separate_console_script_is_installed():
+    exe = Path(get_package_prefix("m2h_ros")) / "lib" / "m2h_ros" / "m2h-separate"
+    result = subprocess.run([str(ROOT / "scripts" / "bin" / "m2h-separate"), "--help"],
+                            capture_output=True, text=True, timeout=60)
+    assert exe.is_file() and result.returncode == 0 and "--target" in result.stdout
