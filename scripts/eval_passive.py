@@ -21,18 +21,18 @@ from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
 from m2h_ros.errors import M2HError
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
-from m2h_ros.training.passive_eval import VARIANTS, evaluate_passive, summarize
+from m2h_ros.training.passive_eval import REFERENCES, VARIANTS, evaluate_passive, summarize
 
 LABELS = {"separator_gt_phase": "separator, GT phase (paper)", "separator_mixture_phase": "separator, mixture phase",
           "mixture_gt_phase": "mixture, GT phase", "mixture": "mixture (do nothing)"}
 
 
 def format_table(results: dict[str, dict[str, dict[str, float]]]) -> str:
-    lines = [f"{'sounds':<8} {'estimate':<30} {'SI-SDR dB':>16} {'STFT distance':>18} {'n':>5}"]
+    lines = [f"{'sounds':<8} {'estimate':<30} {'scored vs':<25} {'SI-SDR dB':>16} {'STFT distance':>18} {'n':>5}"]
     for split, summary in results.items():
         for variant in VARIANTS:
             s = summary[variant]
-            lines.append(f"{split:<8} {LABELS[variant]:<30} {s['si_sdr']:>9.2f} ± {s['si_sdr_sem']:<4.2f} "
+            lines.append(f"{split:<8} {LABELS[variant]:<30} {REFERENCES[variant]:<25} {s['si_sdr']:>9.2f} ± {s['si_sdr_sem']:<4.2f} "
                          f"{s['stft_distance']:>10.1f} ± {s['stft_distance_sem']:<5.1f} {s['episodes']:>5}")
     return "\n".join(lines)
 
@@ -60,6 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     document = {"command": shlex.join(["scripts/eval_passive.py", *(sys.argv[1:] if argv is None else argv)]),
                 "checkpoint": str(args.checkpoint), "task": args.task, "scene_split": "test", "step": 0,
                 "count_per_split": args.count, "wall_seconds": round(time.perf_counter() - started, 1),
+                "references": REFERENCES,
                 "results": results}
     out.write_text(json.dumps(document, indent=1) + "\n")
     print(f"wrote {out}")

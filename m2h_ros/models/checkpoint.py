@@ -7,7 +7,11 @@ A checkpoint is a ``torch.save``-d dict of plain types (loaded with ``weights_on
   model_args   dict, the model's configuration dataclass as a dict
   state_dict   dict[str, Tensor]
   metadata     dict of JSON-like values (training run, data, seed, ...)
-  + kind-specific entries; separators add ``stft`` (StftConfig as a dict) and ``classes`` (list[str]).
+  + kind-specific entries; separators add ``stft`` (StftConfig as a dict), ``classes`` (list[str])
+    and ``separator_version`` (int, SEPARATOR_VERSION: what the outputs of the weights mean; absent
+    in files written before it existed, which are version 1).
+
+Files are written 0644 less the umask (as ``open`` would create them), not mkstemp's 0600.
 
 Every problem (missing or corrupt file, wrong kind, settings or tensor shapes that differ from what
 the caller expects) raises CheckpointError with a message naming the file and what differs.
@@ -27,7 +31,7 @@ from torch import nn
 
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig
 from m2h_ros.errors import CheckpointError, ConfigError
-from m2h_ros.models.separator import Separator, SeparatorConfig
+from m2h_ros.models.separator import SEPARATOR_VERSION, Separator, SeparatorConfig
 from m2h_ros.paths import PACKAGE_DIR
 
 CHECKPOINT_FORMAT = 1
@@ -40,16 +44,18 @@ _PLAIN_TYPES = (str, int, float, bool, type(None))
 
 
 def _check_plain(value: Any, where: str) -> None:
-    """Metadata must survive ``torch.load(weights_only=True)``: JSON-like values only."""
-    if isinstance(value, _PLAIN_TYPES):
+    """Metadata must survive ``torch.load(weights_only=True)``: JSON-like values only. Types are
+    checked exactly: subclasses (numpy.float64, torch's TorchVersion str) pickle as their own class,
+    which the weights-only unpickler refuses."""
+    if type(value) in _PLAIN_TYPES:
         return
-    if isinstance(value, (list, tuple)):
+    if type(value) in (list, tuple):
         for i, item in enumerate(value):
             _check_plain(item, f"{where}[{i}]")
         return
-    if isinstance(value, dict):
+    if type(value) is dict:
         for key, item in value.items():
-            if not isinstance(key, str):
+            if type(key) is not str:
                 raise ConfigError(f"checkpoint {where} has a non-string key {key!r}")
             _check_plain(item, f"{where}.{key}")
         return
@@ -70,11 +76,19 @@ def write_checkpoint(path: str | os.PathLike, *, kind: str, model_args: Mapping[
     os.close(fd)
     try:
         torch.save(payload, tmp)
+        os.chmod(tmp, 0o644 & ~_umask())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
     return path
+
+
+def _umask() -> int:
+    """The process umask (reading it means setting it; restored at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def read_checkpoint(path: str | os.PathLike, *, kind: str, map_location: str | torch.device = "cpu") -> dict[str, Any]:
@@ -142,7 +156,7 @@ def save_separator(path: str | os.PathLike, separator: Separator, *, classes: Se
     separator.config.check_stft(stft_config)
     return write_checkpoint(path, kind=SEPARATOR_KIND, model_args=separator.config.to_dict(),
                             state_dict=separator.state_dict(), metadata=metadata,
-                            stft=stft_config.to_dict(), classes=classes)
+                            stft=stft_config.to_dict(), classes=classes, separator_version=SEPARATOR_VERSION)
 
 
 def load_separator(path: str | os.PathLike, *, expected_config: SeparatorConfig | None = None,
@@ -157,6 +171,11 @@ def load_separator(path: str | os.PathLike, *, expected_config: SeparatorConfig 
     for key in ("stft", "classes"):
         if key not in payload:
             raise CheckpointError(f"checkpoint {path} lacks the entry {key!r}")
+    version = payload.get("separator_version", 1)
+    if version != SEPARATOR_VERSION:
+        raise CheckpointError(f"checkpoint {path} holds a version-{version} separator (other output "
+                              f"parameterisation), this code needs version {SEPARATOR_VERSION}; retrain it with "
+                              f"`{DEFAULT_SEPARATOR_BUILD_COMMAND} --out {path}`")
     try:
         config = SeparatorConfig.from_dict(payload["model_args"])
         stft_config = StftConfig.from_dict(payload["stft"])

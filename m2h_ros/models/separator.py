@@ -7,11 +7,15 @@ magnitude is (B, 32, 32, 32) and a monaural one (B, 16, 32, 32).
 * f^B: U-Net on [log(1 + |mixture|) (2S channels), class plane] -> sigmoid ratio mask (2S channels),
   applied to the linear mixture magnitude -> separated binaural magnitude. (The original code uses
   the unbounded 1x1-conv output as the mask; a sigmoid keeps it in [0, 1], the ideal-ratio-mask range.)
-* f^M: U-Net on [log(1 + separated binaural), class plane] -> softplus -> target monaural magnitude
-  (S channels). (The original code feeds f^M no class plane and leaves its output unbounded.)
-* f^R: 2-conv refiner on [current f^M estimate, previous refined estimate] -> softplus -> refined
-  magnitude, which is also the memory for the next step. At an episode's first step the previous
-  estimate is the current one (memory reset).
+* f^M: U-Net on [log(1 + separated binaural), class plane] -> non-negative gain (softplus / ln 2, so
+  a zero score is gain 1) applied to the ear average of the separated binaural magnitude -> target
+  monaural magnitude (S channels). (The original code feeds f^M no class plane and regresses the
+  magnitude directly with an unbounded output; predicting absolute linear magnitudes from log input
+  barely learned here, a gain on the ear average learns quickly.)
+* f^R: 2-conv refiner on [current f^M estimate, previous refined estimate] -> correction added to the
+  current estimate, clamped at 0 -> refined magnitude, which is also the memory for the next step.
+  Its last conv starts at zero, so the untrained refiner is the identity. At an episode's first step
+  the previous estimate is the current one (memory reset).
 
 The class plane holds ``class_index + 1`` (as ``core.audio.stft.class_channel_value``).
 """
@@ -32,6 +36,11 @@ from m2h_ros.models.unet import MemoryRefiner, UNet
 
 PRESET_NAMES = ("paper", "compact")
 N_EARS = 2  # binaural input
+_INV_LN2 = 1.0 / float(np.log(2.0))  # softplus(0) * this = gain 1
+# Version of the output parameterisation, stored in checkpoints: weights of another version have the
+# same shapes but mean something else. 1: f^M absolute magnitude (softplus), f^R absolute (softplus);
+# 2: f^M gain on the ear-averaged binaural estimate, f^R residual with a zero-initialised last conv.
+SEPARATOR_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -127,8 +136,11 @@ class Separator(nn.Module):
         return mask, mask * mixture
 
     def predict_monaural(self, binaural: torch.Tensor, class_index: torch.Tensor) -> torch.Tensor:
-        """f^M: separated binaural magnitude (B, 2S, H, W) -> monaural magnitude (B, S, H, W)."""
-        return F.softplus(self.monaural_predictor(self._with_class_plane(torch.log1p(binaural), class_index)))
+        """f^M: separated binaural magnitude (B, 2S, H, W) -> monaural magnitude (B, S, H, W), as a
+        predicted gain times the ear average (channel-major layout: ears are the leading S-blocks)."""
+        score = self.monaural_predictor(self._with_class_plane(torch.log1p(binaural), class_index))
+        ear_mean = binaural.reshape(binaural.shape[0], N_EARS, -1, *binaural.shape[2:]).mean(dim=1)
+        return F.softplus(score) * _INV_LN2 * ear_mean
 
     def refine(self, monaural: torch.Tensor, memory: torch.Tensor | None,
                reset: torch.Tensor | None = None) -> torch.Tensor:
@@ -139,7 +151,7 @@ class Separator(nn.Module):
             if memory.shape != monaural.shape:
                 raise AudioError(f"memory shape {tuple(memory.shape)} differs from estimate {tuple(monaural.shape)}")
             previous = memory if reset is None else torch.where(reset.reshape(-1, 1, 1, 1), monaural, memory)
-        return F.softplus(self.refiner(monaural, previous))
+        return F.relu(monaural + self.refiner(monaural, previous))
 
     def forward(self, mixture: torch.Tensor, class_index: torch.Tensor, memory: torch.Tensor | None = None,
                 reset: torch.Tensor | None = None) -> SeparatorStep:

@@ -80,7 +80,12 @@ class UNet(nn.Module):
 
 
 class MemoryRefiner(nn.Module):
-    """f^R: conv k3 s1 p1 -> BN -> ReLU -> conv k3 s1 p1 on [current, previous] (2C channels) -> C."""
+    """f^R: conv k3 s1 p1 -> BN -> ReLU -> conv k3 s1 p1 on [current, previous] (2C channels) -> C.
+
+    The output is a *correction* added to the current estimate by the caller; the last conv is
+    zero-initialised so an untrained refiner is the identity (refined = current) and training starts
+    from the unrefined estimate instead of from noise.
+    """
 
     def __init__(self, channels: int, hidden: int) -> None:
         super().__init__()
@@ -91,6 +96,7 @@ class MemoryRefiner(nn.Module):
             nn.Conv2d(hidden, channels, kernel_size=3, padding=1, bias=False),
         )
         _init_weights(self.body, nonlinearity="relu")
+        nn.init.zeros_(self.body[-1].weight)
 
     def forward(self, current: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
         return self.body(torch.cat((current, previous), dim=1))

@@ -1,7 +1,10 @@
 """Separator checkpoints: round trip, self-rebuilding, and clear errors for every kind of mismatch."""
 
+import os
+import stat
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -15,7 +18,7 @@ from m2h_ros.models.checkpoint import (
     save_separator,
     write_checkpoint,
 )
-from m2h_ros.models.separator import Separator, SeparatorConfig
+from m2h_ros.models.separator import SEPARATOR_VERSION, Separator, SeparatorConfig
 
 TINY = SeparatorConfig(unet_channels=(4, 4, 8, 8, 8), refiner_hidden=4)
 CLASSES = ("speech", "music")
@@ -110,10 +113,43 @@ def test_shape_mismatch_names_the_tensor(tmp_path: Path, saved: tuple[Path, Sepa
 
 def test_invalid_stored_settings_and_metadata(tmp_path: Path) -> None:
     path = write_checkpoint(tmp_path / "bad.pt", kind="m2h_separator", model_args={"unet_channels": [1, 2]},
-                            state_dict={}, stft=DEFAULT_STFT.to_dict(), classes=["speech"])
+                            state_dict={}, stft=DEFAULT_STFT.to_dict(), classes=["speech"],
+                            separator_version=SEPARATOR_VERSION)
     with pytest.raises(CheckpointError, match="invalid settings.*unet_channels"):
         load_separator(path)
     with pytest.raises(ConfigError, match="metadata.when"):
         save_separator(tmp_path / "x.pt", Separator(TINY), classes=CLASSES, metadata={"when": object()})
     with pytest.raises(ConfigError, match="classes"):
         save_separator(tmp_path / "x.pt", Separator(TINY), classes=["speech", "speech"])
+
+
+def test_old_separator_version_is_refused(tmp_path: Path, saved: tuple[Path, Separator]) -> None:
+    payload = torch.load(saved[0], weights_only=True)
+    del payload["separator_version"]  # files written before the entry existed are version 1
+    old = tmp_path / "old.pt"
+    torch.save(payload, old)
+    with pytest.raises(CheckpointError, match=f"version-1 separator .* needs version {SEPARATOR_VERSION}; retrain"):
+        load_separator(old)
+
+
+def test_written_files_are_world_readable(tmp_path: Path) -> None:
+    previous = os.umask(0o022)
+    try:
+        path = write_checkpoint(tmp_path / "a.pt", kind="k", model_args={}, state_dict={})
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644
+        os.umask(0o077)
+        path = write_checkpoint(tmp_path / "b.pt", kind="k", model_args={}, state_dict={})
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    finally:
+        os.umask(previous)
+
+
+@pytest.mark.parametrize("value,type_name", [(np.float64(0.5), "float64"), (np.int64(3), "int64"),
+                                             (torch.__version__, "TorchVersion"), ({1: "a"}.keys(), "dict_keys")])
+def test_metadata_must_be_exactly_plain(tmp_path: Path, value: object, type_name: str) -> None:
+    # numpy scalars and torch's version string subclass float/str but fail weights_only loading
+    with pytest.raises(ConfigError, match=f"metadata.x holds a {type_name}"):
+        write_checkpoint(tmp_path / "m.pt", kind="k", model_args={}, state_dict={}, metadata={"x": value})
+    path = write_checkpoint(tmp_path / "m.pt", kind="k", model_args={}, state_dict={},
+                            metadata={"x": [str(torch.__version__), float(np.float64(0.5)), (1, None, True)]})
+    assert read_checkpoint(path, kind="k")["metadata"] == {"x": [str(torch.__version__), 0.5, (1, None, True)]}

@@ -25,10 +25,16 @@ from m2h_ros.models.separator import (
 from m2h_ros.models.unet import MemoryRefiner, UNet
 
 
+def with_trained_refiner(separator: Separator) -> Separator:
+    """A fresh refiner is the identity (zero last conv); give it weights so the memory matters."""
+    torch.nn.init.normal_(separator.refiner.body[-1].weight, std=0.05)
+    return separator
+
+
 @pytest.fixture(scope="module")
 def separator() -> Separator:
     torch.manual_seed(0)
-    return Separator(SeparatorConfig.preset("compact")).eval()
+    return with_trained_refiner(Separator(SeparatorConfig.preset("compact"))).eval()
 
 
 def test_presets_and_config_validation() -> None:
@@ -72,6 +78,28 @@ def test_kaiming_init_scale() -> None:
     assert net.head.bias.abs().max().item() == 0.0
     refiner = MemoryRefiner(16, 32)
     assert refiner.body[0].weight.std().item() == pytest.approx(np.sqrt(2.0 / (32 * 9)), rel=0.05)
+    assert refiner.body[-1].weight.abs().max().item() == 0.0
+
+
+def test_untrained_refiner_is_the_identity() -> None:
+    torch.manual_seed(4)
+    model = Separator(SeparatorConfig(unet_channels=(4, 4, 4, 4, 4), refiner_hidden=4)).eval()
+    current, previous = torch.rand(2, 16, 32, 32) * 5, torch.rand(2, 16, 32, 32) * 5
+    with torch.no_grad():
+        torch.testing.assert_close(model.refine(current, previous), current)
+
+
+def test_monaural_is_a_gain_on_the_ear_average() -> None:
+    torch.manual_seed(5)
+    model = Separator(SeparatorConfig(unet_channels=(4, 4, 4, 4, 4), refiner_hidden=4)).eval()
+    binaural, classes = torch.rand(2, 32, 32, 32) * 10, torch.tensor([0, 1])
+    torch.nn.init.zeros_(model.monaural_predictor.head.weight)  # zero score -> gain 1
+    with torch.no_grad():
+        torch.testing.assert_close(model.predict_monaural(binaural, classes), (binaural[:, :16] + binaural[:, 16:]) / 2)
+        # a silent band stays silent whatever the gain
+        binaural[:, [3, 19]] = 0
+        torch.nn.init.normal_(model.monaural_predictor.head.weight)
+        assert model.predict_monaural(binaural, classes)[:, 3].abs().max() == 0
 
 
 def test_step_shapes_ranges_and_memory(separator: Separator) -> None:
@@ -84,7 +112,7 @@ def test_step_shapes_ranges_and_memory(separator: Separator) -> None:
         assert first.monaural.shape == first.refined.shape == (3, 16, 32, 32)
         assert 0 <= first.mask.min() and first.mask.max() <= 1
         torch.testing.assert_close(first.binaural, first.mask * mixture)
-        assert (first.monaural > 0).all() and (first.refined > 0).all()
+        assert (first.monaural > 0).all() and (first.refined >= 0).all() and (first.refined > 0).any()
         # first step: previous := current
         torch.testing.assert_close(first.refined, separator.refine(first.monaural, first.monaural))
         second = separator(mixture, classes, first.refined)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from m2h_ros.core.audio.metrics import si_sdr
+from m2h_ros.core.audio.metrics import delayed, si_sdr
 from m2h_ros.core.world.env import BatchEnv
 from m2h_ros.core.world.episodes import episodes_for
 from m2h_ros.errors import ConfigError
@@ -84,7 +84,9 @@ def test_passive_eval_gives_finite_scores_and_the_true_floor(trained, small_val_
             assert values.shape == (3,) and np.isfinite(values).all()
     env = BatchEnv(episodes, folder_library, n_envs=3, config=small_val_data.env, autoreset=False)
     obs, info = env.reset(episodes=episodes)
-    floor = si_sdr(obs["audio"].mean(axis=1), info["target_monaural"])
+    # mixture-phase variants are scored against the dry clip delayed by the direct path
+    aligned = delayed(info["target_monaural"], np.rint(info["target_delay"]).astype(int))
+    floor = si_sdr(obs["audio"].mean(axis=1), aligned)
     np.testing.assert_allclose(scores["mixture"]["si_sdr"], floor, atol=1e-6)
     summary = summarize(scores)
     assert summary["mixture"]["episodes"] == 3 and summary["mixture"]["si_sdr_sem"] >= 0

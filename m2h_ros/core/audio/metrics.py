@@ -6,6 +6,8 @@
 * :func:`stft_distance` - Euclidean (Frobenius) distance between complex monaural spectrograms,
   i.e. the plain L2 norm of their difference over all frequency bins and frames, no normalisation
   (the paper's definition).
+* :func:`delayed` - a reference shifted later by whole samples (zeros in front), to score estimates in
+  the mixture's phase against the dry clip as the microphones hear it in time (delay-aligned).
 """
 
 from __future__ import annotations
@@ -61,3 +63,24 @@ def stft_distance(estimate_spec: np.ndarray, reference_spec: np.ndarray) -> np.n
     diff = est.astype(np.complex128) - ref.astype(np.complex128)
     result = np.sqrt(np.sum(diff.real**2 + diff.imag**2, axis=(-2, -1)))
     return float(result) if result.ndim == 0 else result
+
+
+def delayed(reference: np.ndarray, samples: int | np.ndarray) -> np.ndarray:
+    """``reference`` (..., N) delayed by ``samples`` whole samples (an int, or one per leading index,
+    broadcast against shape (...)): zeros fill the start and the end is cut, so the length stays N.
+
+    The delay-aligned reference of a reverberant recording: the ears hear the dry clip after the
+    direct path's propagation delay, so scoring a mixture-phase estimate against the undelayed clip
+    measures the misalignment, not the separation. Negative or non-integer delays raise AudioError.
+    """
+    ref = np.asarray(reference)
+    shift = np.asarray(samples)
+    if ref.ndim < 1:
+        raise AudioError(f"delayed needs a reference of shape (..., N), got {ref.shape}")
+    if not np.issubdtype(shift.dtype, np.integer) or np.any(shift < 0):
+        raise AudioError(f"delays must be non-negative whole samples, got {samples!r}")
+    n = ref.shape[-1]
+    index = np.arange(n) - shift[..., None]  # (..., N): source sample of each output sample
+    index, ref = np.broadcast_arrays(index, ref)
+    out = np.take_along_axis(ref, np.clip(index, 0, n - 1), axis=-1)
+    return np.where(index >= 0, out, np.zeros((), ref.dtype))

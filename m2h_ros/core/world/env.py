@@ -23,7 +23,10 @@ metres, ``pose`` (B, 3) float32 (x, y, heading angle in rad), ``node``, ``headin
 (0 speech, 1 music), ``step`` (B,) int64. The ground truth the separators are scored and trained on
 is in ``info``: the target's dry clip and
 the target alone as heard (its binaural render, not divided by the number of sources, as in the
-original code's ground-truth components).
+original code's ground-truth components), and ``target_delay`` (B,) float64, the samples after which
+the target's direct sound reaches the head centre (straight-line distance, at least the acoustics'
+``min_distance``, over the speed of sound: where the RIRs put it, HRIR centre delay included), to
+delay-align the dry clip with what the ears hear when scoring estimates in the mixture's phase.
 """
 
 from __future__ import annotations
@@ -272,7 +275,7 @@ class BatchEnv:
             fresh_obs, fresh_info = self._observe(ended)
             for key, value in fresh_obs.items():
                 obs[key][ended] = value
-            for key in ("target_monaural", "target_binaural", "geodesic_distance", "at_target",
+            for key in ("target_monaural", "target_binaural", "target_delay", "geodesic_distance", "at_target",
                         "episode_index"):
                 info[key][ended] = fresh_info[key]
         return obs, reward, terminated, truncated, info
@@ -379,6 +382,7 @@ class BatchEnv:
                                   spectrogram) for c in chunks[1:]] if len(chunks) > 1 else []
         positions = np.empty((n, 2), np.float64)
         geodesic = np.empty(n, np.float32)
+        target_distance = np.empty(n, np.float64)
         if cfg.camera:
             rgb = np.empty((n, cam.height, cam.width, 3), np.uint8)
             depth = np.empty((n, cam.height, cam.width, 1), np.float32)
@@ -386,6 +390,7 @@ class BatchEnv:
             grid = data.scene.grid
             positions[rows] = grid.positions[node[rows]]
             geodesic[rows] = grid.geodesic[node[rows], target[rows]]
+            target_distance[rows] = np.linalg.norm(grid.positions[target[rows]] - positions[rows], axis=1)
             if cfg.camera:
                 rgb[rows], depth[rows, ..., 0] = data.views.views(node[rows], heading[rows])
         self._render_audio(slots, chunks[0][0], chunks[0][-1] + 1, audio, target_binaural, spectrogram)
@@ -397,7 +402,11 @@ class BatchEnv:
             "heading": heading, "target_class": self._target_class[slots], "step": self._step[slots]}
         if cfg.camera:
             obs["rgb"], obs["depth"] = rgb, depth
+        acoustics = cfg.acoustics
+        target_delay = (np.maximum(target_distance, acoustics.min_distance) / acoustics.speed_of_sound
+                        * acoustics.sample_rate)
         info = {"target_monaural": self._target_mono[slots], "target_binaural": target_binaural,
+                "target_delay": target_delay,
                 "geodesic_distance": geodesic, "at_target": node == target,
                 "episode_index": self._episode_index[slots],
                 "done": np.zeros(n, bool), "success": np.zeros(n, bool)}

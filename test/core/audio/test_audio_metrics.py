@@ -6,7 +6,7 @@ import scipy.signal
 import torch
 from torchmetrics.functional.audio import scale_invariant_signal_distortion_ratio
 
-from m2h_ros.core.audio.metrics import si_sdr, stft_distance
+from m2h_ros.core.audio.metrics import delayed, si_sdr, stft_distance
 from m2h_ros.core.audio.stft import stft
 from m2h_ros.errors import AudioError
 
@@ -92,3 +92,22 @@ def test_stft_distance_is_frobenius_norm() -> None:
         stft_distance(a[0] * np.nan, b[0])
     with pytest.raises(AudioError, match="shapes"):
         stft_distance(a[0], b)
+
+
+def test_delayed_shifts_with_zeros_in_front() -> None:
+    x = np.arange(1.0, 7.0)
+    np.testing.assert_array_equal(delayed(x, 2), [0, 0, 1, 2, 3, 4])
+    np.testing.assert_array_equal(delayed(x, 0), x)
+    np.testing.assert_array_equal(delayed(x, 9), np.zeros(6))
+    batch = np.stack([x, 10 * x]).astype(np.float32)
+    out = delayed(batch, np.array([1, 3]))
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, [[0, 1, 2, 3, 4, 5], [0, 0, 0, 10, 20, 30]])
+    # a delayed copy of a signal scores far better against the delay-aligned reference
+    rng = np.random.default_rng(1)
+    dry = rng.standard_normal(4000)
+    heard = delayed(0.3 * dry, 37) + 0.01 * rng.standard_normal(4000)
+    assert si_sdr(heard, delayed(dry, 37)) > 25 > 0 > si_sdr(heard, dry)
+    for bad in (-1, 1.5, np.array([2, -3])):
+        with pytest.raises(AudioError, match="non-negative whole samples"):
+            delayed(batch, bad)
