@@ -37,9 +37,12 @@ done
 PIP_KEY=$(sha "$ROOT/requirements.txt" "$ROOT/requirements-nodeps.txt"; "$VENV/bin/python" -VV)
 if ! fresh pip "$PIP_KEY"; then
   say "installing pinned Python dependencies (first run: a few minutes)"
-  "$VENV/bin/python" -m pip install --disable-pip-version-check -q -r "$ROOT/requirements.txt"
+  # (pip's complaints about index folders this machine's pip.conf names but lacks are noise)
+  quiet_pip() { "$VENV/bin/python" -m pip install --disable-pip-version-check -q "$@" 2>&1 |
+    { grep -v '^WARNING: Location' || true; }; }
+  quiet_pip -r "$ROOT/requirements.txt"
   # tinysoundfont's pyaudio dependency does not build here and is only needed for playback.
-  "$VENV/bin/python" -m pip install --disable-pip-version-check -q --no-deps -r "$ROOT/requirements-nodeps.txt"
+  quiet_pip --no-deps -r "$ROOT/requirements-nodeps.txt"
   # The ROS wheels export CMake files naming the wheel builder's Python; point them at ours.
   PYINC=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
   NPINC=$("$VENV/bin/python" -c "import numpy; print(numpy.get_include())")
