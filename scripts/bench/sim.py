@@ -153,6 +153,8 @@ def main() -> None:
                                    count=args.episodes)
     episodes_for(episode_config, library)   # cached once, before the workers read it
     context = multiprocessing.get_context("spawn")
+    # Other jobs on the 2 cores change these figures by tens of percent: say how busy the machine was.
+    print(f"load average before the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"throughput ({args.steps} timed batch steps after 20 warm ones, uniformly random actions, "
           f"threads={args.threads}, pose cache {args.pose_cache}/slot, RIR banks and views warm):")
     rates = {}
