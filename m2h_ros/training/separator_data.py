@@ -29,7 +29,6 @@ import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -39,9 +38,16 @@ from m2h_ros.core.audio.stft import stft
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
-from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, Episode, EpisodeConfig, episodes_for
+from m2h_ros.core.world.episodes import (
+    MOVE_FORWARD,
+    TURN_LEFT,
+    TURN_RIGHT,
+    Episode,
+    EpisodeConfig,
+    episodes_for,
+    scene_at,
+)
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.scene import Scene, load_split
 from m2h_ros.errors import CacheError, ConfigError
 from m2h_ros.paths import data_dir
 
@@ -84,20 +90,22 @@ class SeparatorDataConfig:
             raise ConfigError("SeparatorDataConfig.env must be an EnvConfig with camera=False")
 
     @classmethod
+    def _near_and_far(cls, split: str, sound_split: str, near: int, far: int, *, seed: int,
+                      sound_variants: int) -> SeparatorDataConfig:
+        return cls(episodes=tuple(
+            EpisodeConfig(task=task, scene_split=split, sound_split=sound_split, count=count, seed=seed)
+            for task, count in (("near_target", near), ("far_target", far))),
+            sound_variants=sound_variants, steps=11, seed=seed)
+
+    @classmethod
     def training(cls, *, seed: int = 0) -> SeparatorDataConfig:
         """Default pretraining set: train scenes, heard sounds, near and far starts (see docs)."""
-        return cls(episodes=(
-            EpisodeConfig(task="near_target", scene_split="train", sound_split="heard", count=96, seed=seed),
-            EpisodeConfig(task="far_target", scene_split="train", sound_split="heard", count=48, seed=seed)),
-            sound_variants=4, steps=11, seed=seed)
+        return cls._near_and_far("train", "heard", 96, 48, seed=seed, sound_variants=4)
 
     @classmethod
     def validation(cls, *, seed: int = 0) -> SeparatorDataConfig:
         """Default validation set: val scenes, unheard sounds."""
-        return cls(episodes=(
-            EpisodeConfig(task="near_target", scene_split="val", sound_split="unheard", count=36, seed=seed),
-            EpisodeConfig(task="far_target", scene_split="val", sound_split="unheard", count=12, seed=seed)),
-            sound_variants=1, steps=11, seed=seed)
+        return cls._near_and_far("val", "unheard", 36, 12, seed=seed, sound_variants=1)
 
     @property
     def n_sequences(self) -> int:
@@ -164,15 +172,10 @@ def policy_actions(seed: int, sequence: int, n_actions: int) -> np.ndarray:
     return rng.choice(POLICY_ACTIONS, size=n_actions, p=POLICY_PROBS)
 
 
-@lru_cache(maxsize=32)
-def _scene(split: str, preset: str, index: int) -> Scene:
-    return load_split(split, preset=preset)[index]
-
-
 def _simulate_source(split: str, preset: str, index: int, node: int, acoustics: AcousticsConfig,
                      cache_dir: Path | None) -> None:
     """Worker: compute one source node's RIRs into the bank cache (rirs() builds missing nodes)."""
-    RirBank(_scene(split, preset, index), acoustics, cache_dir=cache_dir, progress=False).rirs([node], [0], [0])
+    RirBank(scene_at(split, preset, index), acoustics, cache_dir=cache_dir, progress=False).rirs([node], [0], [0])
 
 
 def prebuild_rirs(episodes: list[Episode], acoustics: AcousticsConfig, *, cache_dir: Path | None = None,
@@ -184,7 +187,7 @@ def prebuild_rirs(episodes: list[Episode], acoustics: AcousticsConfig, *, cache_
     """
     needed = sorted({(e.scene_split, e.scene_preset, e.scene_index, node) for e in episodes for node in e.source_nodes})
     missing = [job for job in needed
-               if not RirBank(_scene(*job[:3]), acoustics, cache_dir=cache_dir, progress=False).path(job[3]).exists()]
+               if not RirBank(scene_at(*job[:3]), acoustics, cache_dir=cache_dir, progress=False).path(job[3]).exists()]
     if not missing:
         return 0
     bar = tqdm(total=len(missing), desc="RIR source nodes", unit="src", disable=not progress)

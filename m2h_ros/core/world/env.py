@@ -48,10 +48,10 @@ from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, stft
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.camera import CameraConfig, CameraViews
-from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.scene import Scene, load_split
+from m2h_ros.core.world.scene import Scene
 from m2h_ros.errors import ConfigError, EpisodeError, M2HError
 
 N_ACTIONS = 4
@@ -110,14 +110,6 @@ def _scene_key(episode: Episode) -> tuple[str, str, int]:
     return episode.scene_split, episode.scene_preset, episode.scene_index
 
 
-def _episode_scene(key: tuple[str, str, int]) -> Scene:
-    split, preset, index = key
-    scenes = load_split(split, preset=preset)
-    if not 0 <= index < len(scenes):
-        raise EpisodeError(f"scene index {index} is not in split {split!r} ({len(scenes)} scenes)")
-    return scenes[index]
-
-
 class BatchEnv:
     """``n_envs`` Move2Hear episode slots stepped together; all arrays are batched over slots.
 
@@ -160,7 +152,7 @@ class BatchEnv:
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
         self.n_samples = config.stft.clip_samples
         self.max_sources = max(len(e.source_nodes) for e in self.episodes)
-        self.max_nodes = max(_episode_scene(k).grid.n_nodes for k in {_scene_key(e) for e in self.episodes})
+        self.max_nodes = max(scene_at(*k).grid.n_nodes for k in {_scene_key(e) for e in self.episodes})
         self.max_episode_steps = max(e.max_steps for e in self.episodes)
         # One linear convolution of a clip with a full RIR, without wrap-around into the kept samples.
         self._n_fft = sfft.next_fast_len(self.n_samples + config.acoustics.n_taps - 1, real=True)
@@ -305,7 +297,7 @@ class BatchEnv:
     def _scene_data(self, key: tuple[str, str, int]) -> _SceneData:
         data = self._scenes.get(key)
         if data is None:
-            scene = _episode_scene(key)
+            scene = scene_at(*key)
             views = CameraViews(scene, self.config.camera_config) if self.config.camera else None
             bank = RirBank(scene, self.config.acoustics, cache_dir=self.rir_cache_dir, progress=False)
             data = self._scenes[key] = _SceneData(scene, bank, views)

@@ -64,7 +64,15 @@ class Episode:
         return self.source_nodes[0]
 
     def scene(self) -> Scene:
-        return load_split(self.scene_split, preset=self.scene_preset)[self.scene_index]
+        return scene_at(self.scene_split, self.scene_preset, self.scene_index)
+
+
+def scene_at(split: str, preset: str, index: int) -> Scene:
+    """The ``index``-th scene of a split (scenes are memoised by the generator)."""
+    scenes = load_split(split, preset=preset)
+    if not 0 <= index < len(scenes):
+        raise EpisodeError(f"scene index {index} is not in split {split!r} ({len(scenes)} scenes)")
+    return scenes[index]
 
 
 @dataclass(frozen=True)
