@@ -70,8 +70,9 @@ def main(argv: list[str] | None = None) -> int:
                 "count_per_split": args.count, "wall_seconds": round(time.perf_counter() - started, 1),
                 "estimates": {"mixture": "|STFT| of the ear-mean mixture (do nothing)",
                               "separator": "f^B -> f^M -> f^R, fresh memory",
-                              "oracle": "ideal mask: min(|S|, |X|), X = STFT of the ear-mean mixture, "
-                                        "S = STFT of the dry target / number of sources"},
+                              "oracle": "ideal mask: min(|R|, |X|), X = STFT of the ear-mean mixture, R = STFT "
+                                        "of the metric's reference: the dry target (GT-phase SI-SDR, STFT "
+                                        "distance), the target as heard / number of sources (mixture phase)"},
                 "references": REFERENCES,
                 "results": results}
     out.write_text(json.dumps(document, indent=1) + "\n")

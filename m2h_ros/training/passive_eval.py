@@ -5,11 +5,13 @@ For each episode the agent stays at its start pose. Three monaural magnitude est
 
 * ``mixture`` (the floor): |STFT| of the ear mean of the binaural mixture, i.e. doing nothing;
 * ``separator``: f^B -> f^M -> f^R with fresh memory on the step-0 mixture;
-* ``oracle`` (ideal mask): the ear-mean mixture's magnitude times the ideal ratio mask
-  |S| / |X| capped at 1, where X is the STFT of the ear-mean mixture and S the STFT of the target's
-  dry clip scaled to its share of the mixture (x 1 / number of sources): min(|S|, |X|) per bin. It
-  keeps what the mixture holds of the target's magnitude and removes the rest; it needs the clean
-  target, so it is a bound for masking, not something a separator can reach exactly.
+* ``oracle`` (ideal mask): the ear-mean mixture's magnitude |X| times the ideal mask |R| / |X|
+  capped at 1, i.e. min(|R|, |X|) per bin, where R is what the variant is scored against: for the
+  ground-truth-phase scores the dry target clip (at the level the library stores it, which is what
+  f^M is trained to output), for the mixture-phase score the target as heard (ear mean of its
+  binaural render) at its share of the mixture (/ number of sources). It keeps what the mixture holds
+  of the reference's magnitude and removes the rest; it needs the clean target, so it bounds
+  masking rather than being reachable.
 
 Each is scored as ``scoring.score_magnitude`` does it for the evaluator and ``scripts/evaluate.py``:
 ``si_sdr`` (magnitude + the clean target's phase vs the dry target, the paper's variant),
@@ -26,8 +28,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from m2h_ros.core.audio.scoring import StepTruth, score_magnitude
-from m2h_ros.core.audio.stft import stft
+from m2h_ros.core.audio.scoring import StepTruth, deployable_reference, score_magnitude
+from m2h_ros.core.audio.stft import StftConfig, stft
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import Episode
@@ -39,11 +41,18 @@ from m2h_ros.models.separator import separate_clip
 ESTIMATES = ("mixture", "separator", "oracle")
 
 
-def oracle_magnitude(mixture: np.ndarray, target_monaural: np.ndarray, n_sources: np.ndarray, *, config) -> np.ndarray:
-    """The ideal-mask estimate min(|S|, |X|) (B, F, T): X the ear-mean mixture's STFT, S the dry target's
-    scaled to its share of the mixture."""
-    share = np.asarray(target_monaural, np.float32) / np.asarray(n_sources, np.float32)[:, None]
-    return np.minimum(np.abs(stft(share, config=config)), np.abs(stft(mixture.mean(axis=1), config=config)))
+def oracle_magnitudes(mixture: np.ndarray, truth: StepTruth, n_sources: np.ndarray, *,
+                      config: StftConfig) -> dict[str, np.ndarray]:
+    """The ideal-mask estimates min(|R|, |X|) (B, F, T) for each reference R (see the module docs):
+    ``"dry"`` (the dry target) and ``"heard"`` (the ear-mean target as heard / number of sources)."""
+    x = np.abs(stft(np.asarray(mixture).mean(axis=1), config=config))
+    heard_share = deployable_reference(truth) / np.asarray(n_sources, np.float32)[:, None]
+    return {"dry": np.minimum(np.abs(stft(truth.target_monaural, config=config)), x),
+            "heard": np.minimum(np.abs(stft(heard_share, config=config)), x)}
+
+
+# The oracle's reference for each metric: the one the metric scores against.
+ORACLE_REFERENCE = {"si_sdr": "dry", "stft_distance": "dry", "si_sdr_mixture_phase": "heard"}
 
 
 def evaluate_passive(loaded: LoadedSeparator, episodes: Sequence[Episode], library: SoundLibrary, *,
@@ -71,15 +80,17 @@ def evaluate_passive(loaded: LoadedSeparator, episodes: Sequence[Episode], libra
             truth = StepTruth(target_monaural=info["target_monaural"][keep],
                               target_binaural=info["target_binaural"][keep])
             n_sources = np.array([len(episodes[i].source_nodes) for i in rows])
-            magnitudes = {
-                "mixture": np.abs(stft(mixture.mean(axis=1), config=loaded.stft)),
-                "separator": separate_clip(loaded.separator, mixture, class_map[obs["target_class"][keep]],
-                                           config=loaded.stft).magnitude,
-                "oracle": oracle_magnitude(mixture, truth.target_monaural, n_sources, config=loaded.stft)}
-            for estimate, magnitude in magnitudes.items():
+            separated = separate_clip(loaded.separator, mixture, class_map[obs["target_class"][keep]],
+                                      config=loaded.stft).magnitude
+            floor = np.abs(stft(mixture.mean(axis=1), config=loaded.stft))
+            for estimate, magnitude in (("mixture", floor), ("separator", separated)):
                 step = score_magnitude(magnitude, mixture, truth, config=loaded.stft)
                 for metric in METRICS:
                     scores[estimate][metric][rows] = getattr(step, metric)
+            oracle = {name: score_magnitude(magnitude, mixture, truth, config=loaded.stft) for name, magnitude
+                      in oracle_magnitudes(mixture, truth, n_sources, config=loaded.stft).items()}
+            for metric in METRICS:
+                scores["oracle"][metric][rows] = getattr(oracle[ORACLE_REFERENCE[metric]], metric)
     finally:
         env.close()
     return scores

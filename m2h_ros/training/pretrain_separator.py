@@ -445,6 +445,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--refiner-batches-per-epoch", type=int, default=defaults.refiner_batches_per_epoch,
                         help=f"stage 2 batches of {defaults.refiner_data.batch_size} sequences of "
                              f"{defaults.refiner_data.steps} observations per epoch")
+    parser.add_argument("--train-scenes", type=int, default=None,
+                        help="draw from the first N training scenes only (default: all)")
     parser.add_argument("--threads", type=int, default=defaults.threads, help="torch threads of the trainer")
     parser.add_argument("--workers", type=int, default=defaults.workers, help="data loader processes")
     parser.add_argument("--fresh", action="store_true", help="ignore a saved training state and start afresh")
@@ -457,8 +459,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                             batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
                             refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
                             workers=args.workers,
-                            train_data=StreamConfig.training(seed=args.data_seed),
-                            refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed))
+                            train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes),
+                            refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,
+                                                             scenes=args.train_scenes))
     command = shlex.join([Path(sys.argv[0]).name, *(sys.argv[1:] if argv is None else argv)])
     result = pretrain(config, SoundLibrary.load(), out=args.out, command=command, fresh=args.fresh)
     final, wall = result.metadata["final"], result.metadata["wall_seconds"]

@@ -51,7 +51,7 @@ from m2h_ros.core.world.episodes import (
 )
 from m2h_ros.core.world.navgrid import NavGrid, turn_left, turn_right
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.scene import load_split
+from m2h_ros.core.world.scene import Scene, load_split
 from m2h_ros.errors import ConfigError
 
 # The random policy: forward half of the time so the agent travels, turns otherwise (never Stop,
@@ -78,6 +78,7 @@ class StreamConfig:
     """What a stream draws; every field changes the batches."""
 
     episodes: tuple[EpisodeConfig, ...]  # templates (``count`` and ``seed`` are not used)
+    scenes: int | None = None  # only the first this many scenes of each template's split (None: all)
     batch_size: int = 16  # sequences per batch
     steps: int = 1  # observations per sequence
     max_walk: int = 19  # random actions before the first observation: uniform in 0..max_walk
@@ -92,6 +93,9 @@ class StreamConfig:
             raise ConfigError(f"StreamConfig.episodes must be a non-empty tuple of EpisodeConfig, got {self.episodes!r}")
         object.__setattr__(self, "episodes", tuple(self.episodes))
         object.__setattr__(self, "noise_levels", tuple(float(v) for v in self.noise_levels))
+        if self.scenes is not None and (isinstance(self.scenes, bool) or not isinstance(self.scenes, int)
+                                        or self.scenes < 1):
+            raise ConfigError(f"StreamConfig.scenes must be None or an int >= 1, got {self.scenes!r}")
         for name, low in (("batch_size", 2), ("steps", 1), ("max_walk", 0), ("seed", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -114,10 +118,11 @@ class StreamConfig:
                               "(the stream adds its own noise, after the gains)")
 
     @classmethod
-    def training(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 1) -> StreamConfig:
+    def training(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 1, scenes: int | None = None
+                 ) -> StreamConfig:
         """Train scenes, heard sounds, near and far starts, gain +-3 dB, noise in half the sequences."""
-        return cls(episodes=_near_and_far("train", "heard"), batch_size=batch_size, steps=steps, gain_db=3.0,
-                   noise_levels=MIC_NOISE_LEVELS, noise_fraction=0.5, seed=seed)
+        return cls(episodes=_near_and_far("train", "heard"), scenes=scenes, batch_size=batch_size, steps=steps,
+                   gain_db=3.0, noise_levels=MIC_NOISE_LEVELS, noise_fraction=0.5, seed=seed)
 
     @classmethod
     def validation(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 8) -> StreamConfig:
@@ -126,6 +131,15 @@ class StreamConfig:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def stream_scenes(config: StreamConfig, template: EpisodeConfig) -> list[Scene]:
+    """The scenes a stream draws from for one template: its split's, or the first ``config.scenes``."""
+    scenes = load_split(template.scene_split, preset=template.scene_preset)
+    if config.scenes is not None and config.scenes > len(scenes):
+        raise ConfigError(f"StreamConfig.scenes={config.scenes}, but split {template.scene_split!r} has "
+                          f"{len(scenes)} scenes")
+    return scenes[: config.scenes]
 
 
 class SeparatorBatch(NamedTuple):
@@ -177,7 +191,7 @@ class BatchSource:
 
     def __init__(self, config: StreamConfig, library: SoundLibrary, *, rir_cache_dir: Path | None = None) -> None:
         self.config, self.library, self.rir_cache_dir = config, library, rir_cache_dir
-        self._n_scenes = [len(load_split(e.scene_split, preset=e.scene_preset)) for e in config.episodes]
+        self._n_scenes = [len(stream_scenes(config, e)) for e in config.episodes]
         self._env: BatchEnv | None = None
 
     def plan(self, index: int) -> _Plan:
@@ -202,8 +216,10 @@ class BatchSource:
         cfg, plan = self.config, self.plan(index)
         stft_config = cfg.env.stft
         if self._env is None:
+            # Single observations of fresh episodes never revisit a pose: no pose cache to fill.
             self._env = BatchEnv(plan.episodes, self.library, n_envs=cfg.batch_size, config=cfg.env,
-                                 rir_cache_dir=self.rir_cache_dir, autoreset=False)
+                                 rir_cache_dir=self.rir_cache_dir, autoreset=False,
+                                 pose_cache=32 if cfg.steps > 1 else 0)
         n_sources = np.array([len(e.source_nodes) for e in plan.episodes], np.float32)[:, None, None]
         target_gain, other_gain = (plan.gains[:, i, None, None].astype(np.float32) for i in range(2))
         noise_rngs = [np.random.default_rng(int(s)) for s in plan.noise_seeds]
@@ -275,8 +291,8 @@ def build_banks(config: StreamConfig, *, cache_dir: Path | None = None, workers:
                 progress: bool = True) -> None:
     """Simulate every missing source node of every scene the stream can draw from (a stream may place
     a source on any node), so that no worker stalls on RIR simulation."""
-    keys = sorted({(e.scene_split, e.scene_preset) for e in config.episodes})
-    for split, preset in keys:
-        for scene in load_split(split, preset=preset):
+    keys = {(e.scene_split, e.scene_preset): e for e in config.episodes}
+    for _, template in sorted(keys.items()):
+        for scene in stream_scenes(config, template):
             RirBank(scene, config.env.acoustics, cache_dir=cache_dir, progress=progress).build(
                 workers=workers, progress=progress)

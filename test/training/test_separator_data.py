@@ -115,6 +115,14 @@ def test_batches_are_a_function_of_their_index_for_any_worker_count(small_stream
     assert [b.index for b in fixed_set(source, 2, progress=False)] == [0, 1]
 
 
+def test_scenes_limit_the_draws(small_stream, folder_library):
+    first_two = dataclasses.replace(small_stream, scenes=2)
+    indices = {e.scene_index for i in range(6) for e in BatchSource(first_two, folder_library).plan(i).episodes}
+    assert indices == {0, 1}
+    with pytest.raises(ConfigError, match="scenes"):
+        BatchSource(dataclasses.replace(small_stream, scenes=99), folder_library)
+
+
 def test_config_validation(small_stream):
     with pytest.raises(ConfigError, match="batch_size"):
         dataclasses.replace(small_stream, batch_size=1)
@@ -126,6 +134,8 @@ def test_config_validation(small_stream):
         dataclasses.replace(small_stream, noise_levels=(), noise_fraction=0.5)
     with pytest.raises(ConfigError, match="noise_levels"):
         dataclasses.replace(small_stream, noise_levels=(-0.1,))
+    with pytest.raises(ConfigError, match="scenes"):
+        dataclasses.replace(small_stream, scenes=0)
     with pytest.raises(ConfigError, match="gain_db"):
         dataclasses.replace(small_stream, gain_db=-1.0)
     with pytest.raises(ConfigError, match="mic_noise"):
