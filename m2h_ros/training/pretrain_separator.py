@@ -447,6 +447,9 @@ def build_parser() -> argparse.ArgumentParser:
                              f"{defaults.refiner_data.steps} observations per epoch")
     parser.add_argument("--train-scenes", type=int, default=None,
                         help="draw from the first N training scenes only (default: all)")
+    parser.add_argument("--source-nodes", type=int, default=None,
+                        help="place sources on this many nodes per scene only (fewer RIR source nodes to "
+                             "simulate; default: every node)")
     parser.add_argument("--threads", type=int, default=defaults.threads, help="torch threads of the trainer")
     parser.add_argument("--workers", type=int, default=defaults.workers, help="data loader processes")
     parser.add_argument("--fresh", action="store_true", help="ignore a saved training state and start afresh")
@@ -459,9 +462,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                             batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
                             refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
                             workers=args.workers,
-                            train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes),
+                            train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
+                                                             source_nodes=args.source_nodes),
                             refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,
-                                                             scenes=args.train_scenes))
+                                                             scenes=args.train_scenes, source_nodes=args.source_nodes),
+                            val_data=StreamConfig.validation(source_nodes=args.source_nodes))
     command = shlex.join([Path(sys.argv[0]).name, *(sys.argv[1:] if argv is None else argv)])
     result = pretrain(config, SoundLibrary.load(), out=args.out, command=command, fresh=args.fresh)
     final, wall = result.metadata["final"], result.metadata["wall_seconds"]

@@ -28,7 +28,9 @@ The sound library and the RIR banks come in through ``fork`` (workers share thei
 from __future__ import annotations
 
 import dataclasses
+import zlib
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
@@ -40,6 +42,7 @@ from tqdm import tqdm
 
 from m2h_ros.core.audio.stft import stft, to_slices
 from m2h_ros.core.sounds.library import SoundLibrary
+from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import (
     MOVE_FORWARD,
@@ -48,6 +51,7 @@ from m2h_ros.core.world.episodes import (
     Episode,
     EpisodeConfig,
     draw_episode,
+    scene_at,
 )
 from m2h_ros.core.world.navgrid import NavGrid, turn_left, turn_right
 from m2h_ros.core.world.rir_bank import RirBank
@@ -62,6 +66,7 @@ POLICY_PROBS = np.array([0.5, 0.25, 0.25])
 # SNR 26 / 20 / 14 dB): the levels to run the noise-robustness experiment at.
 MIC_NOISE_LEVELS = (0.05, 0.1, 0.2)
 _STREAM_SALT = 0x736570  # separates the stream's draws from other uses of the same seed
+_SUBSET_SALT = 0x6E6F6465
 
 
 def _audio_only() -> EnvConfig:
@@ -79,6 +84,7 @@ class StreamConfig:
 
     episodes: tuple[EpisodeConfig, ...]  # templates (``count`` and ``seed`` are not used)
     scenes: int | None = None  # only the first this many scenes of each template's split (None: all)
+    source_nodes: int | None = None  # sources only on this many nodes per scene (see source_subset)
     batch_size: int = 16  # sequences per batch
     steps: int = 1  # observations per sequence
     max_walk: int = 19  # random actions before the first observation: uniform in 0..max_walk
@@ -93,9 +99,10 @@ class StreamConfig:
             raise ConfigError(f"StreamConfig.episodes must be a non-empty tuple of EpisodeConfig, got {self.episodes!r}")
         object.__setattr__(self, "episodes", tuple(self.episodes))
         object.__setattr__(self, "noise_levels", tuple(float(v) for v in self.noise_levels))
-        if self.scenes is not None and (isinstance(self.scenes, bool) or not isinstance(self.scenes, int)
-                                        or self.scenes < 1):
-            raise ConfigError(f"StreamConfig.scenes must be None or an int >= 1, got {self.scenes!r}")
+        for name in ("scenes", "source_nodes"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise ConfigError(f"StreamConfig.{name} must be None or an int >= 1, got {value!r}")
         for name, low in (("batch_size", 2), ("steps", 1), ("max_walk", 0), ("seed", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -118,16 +125,19 @@ class StreamConfig:
                               "(the stream adds its own noise, after the gains)")
 
     @classmethod
-    def training(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 1, scenes: int | None = None
-                 ) -> StreamConfig:
+    def training(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 1, scenes: int | None = None,
+                 source_nodes: int | None = None) -> StreamConfig:
         """Train scenes, heard sounds, near and far starts, gain +-3 dB, noise in half the sequences."""
-        return cls(episodes=_near_and_far("train", "heard"), scenes=scenes, batch_size=batch_size, steps=steps,
-                   gain_db=3.0, noise_levels=MIC_NOISE_LEVELS, noise_fraction=0.5, seed=seed)
+        return cls(episodes=_near_and_far("train", "heard"), scenes=scenes, source_nodes=source_nodes,
+                   batch_size=batch_size, steps=steps, gain_db=3.0, noise_levels=MIC_NOISE_LEVELS,
+                   noise_fraction=0.5, seed=seed)
 
     @classmethod
-    def validation(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 8) -> StreamConfig:
+    def validation(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 8,
+                   source_nodes: int | None = None) -> StreamConfig:
         """Val scenes, unheard sounds, no augmentation (the test conditions)."""
-        return cls(episodes=_near_and_far("val", "unheard"), batch_size=batch_size, steps=steps, seed=seed)
+        return cls(episodes=_near_and_far("val", "unheard"), source_nodes=source_nodes, batch_size=batch_size,
+                   steps=steps, seed=seed)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -140,6 +150,15 @@ def stream_scenes(config: StreamConfig, template: EpisodeConfig) -> list[Scene]:
         raise ConfigError(f"StreamConfig.scenes={config.scenes}, but split {template.scene_split!r} has "
                           f"{len(scenes)} scenes")
     return scenes[: config.scenes]
+
+
+def source_subset(scene: Scene, count: int | None) -> np.ndarray | None:
+    """The nodes a stream may place sources on in ``scene``: ``count`` of them, the same for every
+    stream and seed (seeded by the scene id), so one set of RIR source nodes serves them all; None: any."""
+    if count is None or count >= scene.grid.n_nodes:
+        return None
+    rng = np.random.default_rng([_SUBSET_SALT, zlib.crc32(scene.scene_id.encode())])
+    return np.sort(rng.permutation(scene.grid.n_nodes)[:count])
 
 
 class SeparatorBatch(NamedTuple):
@@ -191,7 +210,8 @@ class BatchSource:
 
     def __init__(self, config: StreamConfig, library: SoundLibrary, *, rir_cache_dir: Path | None = None) -> None:
         self.config, self.library, self.rir_cache_dir = config, library, rir_cache_dir
-        self._n_scenes = [len(stream_scenes(config, e)) for e in config.episodes]
+        self._candidates = [[source_subset(scene, config.source_nodes) for scene in stream_scenes(config, e)]
+                            for e in config.episodes]
         self._env: BatchEnv | None = None
 
     def plan(self, index: int) -> _Plan:
@@ -201,8 +221,9 @@ class BatchSource:
         for j in range(cfg.batch_size):
             which = int(rng.integers(len(cfg.episodes)))
             template = cfg.episodes[which]
-            scene_index = int(rng.integers(self._n_scenes[which]))
-            episode = draw_episode(rng, template, scene_index, self.library, episode_id=f"stream/{index}/{j}")
+            scene_index = int(rng.integers(len(self._candidates[which])))
+            episode = draw_episode(rng, template, scene_index, self.library, episode_id=f"stream/{index}/{j}",
+                                   source_candidates=self._candidates[which][scene_index])
             node, heading = walk(episode.scene().grid, episode.start_node, episode.start_heading,
                                  policy_actions(rng, int(rng.integers(cfg.max_walk + 1))))
             episodes.append(dataclasses.replace(episode, start_node=node, start_heading=heading))
@@ -288,11 +309,33 @@ def fixed_set(source: BatchSource, n_batches: int, *, progress: bool = True) -> 
 
 
 def build_banks(config: StreamConfig, *, cache_dir: Path | None = None, workers: int = 2,
-                progress: bool = True) -> None:
-    """Simulate every missing source node of every scene the stream can draw from (a stream may place
-    a source on any node), so that no worker stalls on RIR simulation."""
-    keys = {(e.scene_split, e.scene_preset): e for e in config.episodes}
-    for _, template in sorted(keys.items()):
-        for scene in stream_scenes(config, template):
-            RirBank(scene, config.env.acoustics, cache_dir=cache_dir, progress=progress).build(
-                workers=workers, progress=progress)
+                progress: bool = True) -> int:
+    """Simulate every missing RIR source node the stream can place a source on (all nodes of its
+    scenes, or their ``source_subset``), on ``workers`` processes, so that no data worker stalls on
+    RIR simulation. Returns the number of source nodes simulated."""
+    jobs = []
+    for template in {(e.scene_split, e.scene_preset): e for e in config.episodes}.values():
+        for index, scene in enumerate(stream_scenes(config, template)):
+            bank = RirBank(scene, config.env.acoustics, cache_dir=cache_dir, progress=False)
+            subset = source_subset(scene, config.source_nodes)
+            nodes = range(scene.grid.n_nodes) if subset is None else subset.tolist()
+            jobs += [(template.scene_split, template.scene_preset, index, node) for node in nodes
+                     if not bank.path(node).exists()]
+    bar = tqdm(total=len(jobs), desc="RIR source nodes", unit="src", disable=not (progress and jobs))
+    if workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for future in [pool.submit(_simulate_source, *job, config.env.acoustics, cache_dir) for job in jobs]:
+                future.result()
+                bar.update()
+    else:
+        for job in jobs:
+            _simulate_source(*job, config.env.acoustics, cache_dir)
+            bar.update()
+    bar.close()
+    return len(jobs)
+
+
+def _simulate_source(split: str, preset: str, index: int, node: int, acoustics: AcousticsConfig,
+                     cache_dir: Path | None) -> None:
+    """Worker: compute one source node's RIRs into the bank cache (rirs() builds missing nodes)."""
+    RirBank(scene_at(split, preset, index), acoustics, cache_dir=cache_dir, progress=False).rirs([node], [0], [0])

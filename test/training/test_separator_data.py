@@ -15,8 +15,11 @@ from m2h_ros.training.separator_data import (
     BatchSource,
     SeparatorStream,
     StreamConfig,
+    build_banks,
     fixed_set,
     policy_actions,
+    source_subset,
+    stream_scenes,
     walk,
 )
 
@@ -123,6 +126,20 @@ def test_scenes_limit_the_draws(small_stream, folder_library):
         BatchSource(dataclasses.replace(small_stream, scenes=99), folder_library)
 
 
+def test_source_subsets_limit_placement_and_the_banks_to_build(small_stream, folder_library, tmp_path):
+    limited = dataclasses.replace(small_stream, source_nodes=4, scenes=3)
+    source = BatchSource(limited, folder_library)
+    for i in range(4):
+        for episode in source.plan(i).episodes:
+            subset = source_subset(episode.scene(), 4)
+            assert set(episode.source_nodes) <= set(subset.tolist())
+    scene = stream_scenes(limited, limited.episodes[0])[0]
+    np.testing.assert_array_equal(source_subset(scene, 4), source_subset(scene, 4))  # same for every stream
+    assert source_subset(scene, scene.grid.n_nodes) is None
+    assert build_banks(limited, cache_dir=tmp_path, workers=1, progress=False) == 3 * 4
+    assert build_banks(limited, cache_dir=tmp_path, workers=1, progress=False) == 0  # all cached
+
+
 def test_config_validation(small_stream):
     with pytest.raises(ConfigError, match="batch_size"):
         dataclasses.replace(small_stream, batch_size=1)
@@ -136,6 +153,8 @@ def test_config_validation(small_stream):
         dataclasses.replace(small_stream, noise_levels=(-0.1,))
     with pytest.raises(ConfigError, match="scenes"):
         dataclasses.replace(small_stream, scenes=0)
+    with pytest.raises(ConfigError, match="source_nodes"):
+        dataclasses.replace(small_stream, source_nodes=0)
     with pytest.raises(ConfigError, match="gain_db"):
         dataclasses.replace(small_stream, gain_db=-1.0)
     with pytest.raises(ConfigError, match="mic_noise"):

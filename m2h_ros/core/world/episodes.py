@@ -122,14 +122,16 @@ def _categories(rng: np.random.Generator, config: EpisodeConfig) -> tuple[str, .
     return (target, *others)
 
 
-def _place(rng: np.random.Generator, scene: Scene, config: EpisodeConfig) -> tuple[list[int], int] | None:
-    """Source nodes (target first) at least min_source_distance apart, and a start node."""
+def _place(rng: np.random.Generator, scene: Scene, config: EpisodeConfig,
+           candidates: np.ndarray | None = None) -> tuple[list[int], int] | None:
+    """Source nodes (target first) at least min_source_distance apart, and a start node; sources
+    only on ``candidates`` when given (any node otherwise)."""
     geodesic = scene.grid.geodesic
-    n = scene.grid.n_nodes
+    allowed = np.arange(scene.grid.n_nodes) if candidates is None else np.asarray(candidates)
     for _ in range(_PLACEMENT_TRIES):
-        sources = [int(rng.integers(n))]
+        sources = [int(allowed[rng.integers(len(allowed))])]
         for _ in range(config.n_distractors):
-            free = np.flatnonzero((geodesic[sources] >= config.min_source_distance).all(axis=0))
+            free = allowed[(geodesic[sources][:, allowed] >= config.min_source_distance).all(axis=0)]
             if free.size == 0:
                 break
             sources.append(int(rng.choice(free)))
@@ -157,11 +159,12 @@ def generate_episodes(config: EpisodeConfig, library: SoundLibrary, *, progress:
 
 
 def draw_episode(rng: np.random.Generator, config: EpisodeConfig, scene_index: int, library: SoundLibrary, *,
-                 episode_id: str) -> Episode:
+                 episode_id: str, source_candidates: np.ndarray | None = None) -> Episode:
     """One episode of ``config`` in scene ``scene_index`` of its split (``config.count`` is not used):
-    source placement, start pose, categories, clips and noise seed, all drawn from ``rng``."""
+    source placement (on ``source_candidates`` only, when given), start pose, categories, clips and
+    noise seed, all drawn from ``rng``."""
     scene = scene_at(config.scene_split, config.scene_preset, scene_index)
-    placed = _place(rng, scene, config)
+    placed = _place(rng, scene, config, source_candidates)
     if placed is None:
         raise EpisodeError(
             f"scene {scene.scene_id} cannot hold {config.n_distractors + 1} sources "
