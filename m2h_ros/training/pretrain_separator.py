@@ -363,7 +363,7 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
     resumed = {"stage": state.stage, "epoch": state.epoch} if state.model is not None else None
     if state.model is not None:
         separator.load_state_dict(state.model)
-    for stream in (config.train_data, config.val_data):
+    for stream in (config.train_data, config.refiner_data, config.val_data):
         build_banks(stream, cache_dir=rir_cache_dir, workers=rir_workers, progress=progress)
     val = fixed_set(BatchSource(config.val_data, library, rir_cache_dir=rir_cache_dir), config.val_batches,
                     progress=progress)
