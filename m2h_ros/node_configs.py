@@ -68,7 +68,7 @@ class SeparatorNodeConfig(Config):
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
-    policy: str = setting("doa", "which controller chooses the actions", choices=CONTROLLER_NAMES)
+    policy: str = setting("stand_in_place", "which controller chooses the actions", choices=CONTROLLER_NAMES)
     checkpoint: str = setting("", "policy checkpoint for learned controllers; empty: shipped default")
     seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
 
