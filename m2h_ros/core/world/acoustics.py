@@ -6,7 +6,13 @@ Method (per source node, all receiver nodes at once):
   (libroom walls reflect on one side only, the one their outward normal points away from); doors
   are the gaps between wall polygons, lintels are their own polygons; floor and ceiling are one
   rectangle per maximal cell rectangle of each room. Materials are pyroomacoustics' database
-  entries (energy absorption per octave band 125 Hz - 8 kHz). Obstacles are not acoustic.
+  entries (energy absorption per octave band 125 Hz - 8 kHz); each side of a wall has the wall
+  finish of the room it faces.
+* Furnishing (``furnishing_area``): a room's furnishing (scene.FURNISHINGS: upholstery, curtains,
+  cabinets per m^2 of floor) and its furniture boxes are an equivalent absorption area, spread
+  evenly over the room's faces (``_effective_faces``); they add no geometry. ``room_rt60`` (Eyring,
+  with air absorption) uses the very same faces, and ``measured_room_rt60`` checks the simulated
+  decay against it.
 * Early part (heading dependent): libroom's image-source model up to ``ism_max_order`` with
   visibility tested per receiver across the whole non-convex floor plan, so sound reaches other
   rooms through door gaps. Each visible image contributes the KEMAR HRIR of its arrival direction
@@ -193,12 +199,12 @@ def _room_faces(scene: Any) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarra
         along = p1 - p0
         side = np.array([-along[1], along[0]]) / np.linalg.norm(along)  # a unit normal in plan
         corners = np.array([[*p0, wall.z0], [*p1, wall.z0], [*p1, wall.z1], [*p0, wall.z1]])
-        absorption = _material_absorption(wall.material)
         mid = (p0 + p1) / 2
         for sign in (1.0, -1.0):
             room = cell_room.get(tuple(np.floor(mid + 0.5 * sign * side).astype(int)), -1)
-            if room >= 0:  # a room on this side: face it, normal away from it
-                faces.append((room, corners, np.array([*(-sign * side), 0.0]), absorption))
+            if room >= 0:  # a room on this side: face it, normal away from it, in its finish
+                faces.append((room, corners, np.array([*(-sign * side), 0.0]),
+                              _material_absorption(scene.rooms[room].wall_material)))
     for index, room in enumerate(scene.rooms):
         floor, ceiling = _material_absorption(room.floor_material), _material_absorption(room.ceiling_material)
         for x0, y0, x1, y1 in _cell_rectangles(room.cells):

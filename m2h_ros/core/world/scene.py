@@ -31,7 +31,7 @@ from m2h_ros.errors import ConfigError, M2HError
 WALL_MATERIALS = ("plasterboard", "rough_lime_wash", "wooden_lining", "brickwork", "limestone_wall",
                   "brick_wall_rough", "smooth_brickwork_10mm_pointing", "ceramic_tiles")
 FLOOR_MATERIALS = ("audience_floor", "stage_floor", "linoleum_on_concrete", "marble_floor",
-                   "carpet_thin", "carpet_soft_10mm", "carpet_hairy")
+                   "carpet_thin", "carpet_soft_10mm", "carpet_rubber_5mm")
 # Repeats weight the draw: most homes have plain plasterboard ceilings.
 CEILING_MATERIALS = ("ceiling_plasterboard", "ceiling_plasterboard", "ceiling_plasterboard", "wood_1.6cm")
 OBSTACLE_MATERIALS = ("wood_16mm", "plywood_thin", "chairs_wooden", "chairs_medium_upholstered")
@@ -340,6 +340,20 @@ def build_scene(labels, *, doors=(), obstacles: tuple[Obstacle, ...] = (), surfa
     return Scene(scene_id=scene_id, seed=seed, height=CEILING_HEIGHT, rooms=rooms, walls=walls,
                  obstacles=tuple(obstacles), grid=grid, preset=preset, door_height=DOOR_HEIGHT,
                  size=labels.shape)
+
+
+def isolated_room(scene: Scene, room_index: int) -> Scene:
+    """One room of ``scene`` on its own (doors shut, neighbours gone), with its surfaces,
+    furnishing and furniture boxes: the closed room that Sabine's and Eyring's formulas describe."""
+    if not 0 <= room_index < len(scene.rooms):
+        raise ConfigError(f"room {room_index} is not a room of scene {scene.scene_id}")
+    room = scene.rooms[room_index]
+    labels = np.where(scene.cell_room == room_index, 0, -1)
+    boxes = tuple(o for o in scene.obstacles if scene.room_at((o.xmin, o.ymin)) == room_index)
+    return build_scene(labels, obstacles=boxes,
+                       surfaces=[(room.wall_material, room.floor_material, room.ceiling_material, room.color)],
+                       furnishings=[room.furnishing], scene_id=f"{scene.scene_id}_{room.name}",
+                       seed=scene.seed, preset=scene.preset)
 
 
 def _crossing_rule(labels: np.ndarray, doors: set):
