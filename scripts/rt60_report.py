@@ -1,13 +1,13 @@
 """RT60 of the default scenes per octave band: Eyring for every room, and measured (Schroeder T20).
 
-    python scripts/rt60_report.py [--splits train val test] [--measure test] [--isolated]
-                                  [--sources 2] [--png rt60.png]
+    python scripts/rt60_report.py [--splits train val test] [--measure test [val ...]]
+                                  [--where scene isolated] [--sources 2] [--png rt60.png]
 
 Eyring: ``room_rt60`` of every room of the given splits (analytic, instant). Measured: the
-median T20 of RIRs inside each room of the ``--measure`` split's scenes, simulated by the bank's
-code path (``measured_room_rt60``; a few seconds per source node): in the scene, where rooms are
-coupled through their doors, and with ``--isolated`` also of each room on its own (doors shut),
-the closed room that Eyring's formula describes.
+median T20 of RIRs inside each room of the ``--measure`` splits' scenes, simulated by the bank's
+code path (``measured_room_rt60``; a few seconds per source node), ``--where``: in the scene, where
+rooms are coupled through their doors, and/or each room on its own (doors shut), the closed room
+that Eyring's formula describes. Rooms without two free nodes 1.5 m apart are skipped.
 """
 
 from __future__ import annotations
@@ -35,7 +35,9 @@ def _summary(name: str, rt60: np.ndarray) -> None:
 
 def _ratios(name: str, measured: np.ndarray, eyring: np.ndarray) -> None:
     ratio = measured / eyring
-    print(f"{name} / Eyring: median [min, max] per band")
+    within = (np.abs(ratio - 1) <= 0.2).all(axis=1)
+    print(f"{name} / Eyring: median [min, max] per band; {within.sum()} of {len(ratio)} rooms within 20% "
+          f"in every band")
     for band, centre in enumerate(BAND_CENTRES[SHOWN]):
         r = ratio[:, band]
         print(f"  {centre:6.0f} Hz  {np.median(r):4.2f} [{r.min():4.2f}, {r.max():4.2f}]")
@@ -44,8 +46,9 @@ def _ratios(name: str, measured: np.ndarray, eyring: np.ndarray) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--splits", nargs="+", choices=sorted(SCENE_SPLITS), default=list(SCENE_SPLITS))
-    parser.add_argument("--measure", choices=sorted(SCENE_SPLITS), help="split whose rooms are simulated")
-    parser.add_argument("--isolated", action="store_true", help="also measure each room on its own")
+    parser.add_argument("--measure", nargs="+", choices=sorted(SCENE_SPLITS), default=[],
+                        help="splits whose rooms are simulated")
+    parser.add_argument("--where", nargs="+", choices=("scene", "isolated"), default=["scene", "isolated"])
     parser.add_argument("--sources", type=int, default=2, help="source nodes per room")
     parser.add_argument("--png", help="write box plots of the RT60s per band here")
     args = parser.parse_args(argv)
@@ -57,32 +60,24 @@ def main(argv: list[str] | None = None) -> None:
     _summary(f"Eyring, splits {' '.join(args.splits)}", eyring)
     series = {"Eyring": eyring}
     if args.measure:
-        rows: dict[str, list] = {"Eyring": [], "in scene": [], "isolated": []}
         start = time.perf_counter()
-        for scene in load_split(args.measure):
-            for index in range(len(scene.rooms)):
-                try:
-                    in_scene = measured_room_rt60(scene, index, config, n_sources=args.sources)[SHOWN]
-                except ConfigError as err:  # too small a room for a source-receiver pair
-                    print(f"  skipped: {err}")
-                    continue
-                rows["Eyring"].append(room_rt60(scene, index)[SHOWN])
-                rows["in scene"].append(in_scene)
-                if args.isolated:
-                    room = isolated_room(scene, index)
-                    rows["isolated"].append(measured_room_rt60(room, 0, config, n_sources=args.sources)[SHOWN])
-                    rows.setdefault("Eyring isolated", []).append(room_rt60(room, 0)[SHOWN])
+        for where in args.where:
+            eyring_rows, measured_rows = [], []
+            for scene in (scene for split in args.measure for scene in load_split(split)):
+                for index in range(len(scene.rooms)):
+                    room, room_index = (scene, index) if where == "scene" else (isolated_room(scene, index), 0)
+                    try:
+                        measured = measured_room_rt60(room, room_index, config, n_sources=args.sources)
+                    except ConfigError as err:  # too small a room for a source-receiver pair
+                        print(f"  skipped: {err}")
+                        continue
+                    measured_rows.append(measured[SHOWN])
+                    eyring_rows.append(room_rt60(room, room_index)[SHOWN])
+            name = f"measured {'in scene' if where == 'scene' else 'isolated'}, {' '.join(args.measure)}"
+            _summary(name, np.array(measured_rows))
+            _ratios(name, np.array(measured_rows), np.array(eyring_rows))
+            series[name] = np.array(measured_rows)
         print(f"simulated in {time.perf_counter() - start:.0f} s")
-        reference = np.array(rows["Eyring"])
-        measured = np.array(rows["in scene"])
-        _summary(f"measured in scene, split {args.measure}", measured)
-        _ratios("measured in scene", measured, reference)
-        series[f"measured ({args.measure}, in scene)"] = measured
-        if args.isolated:
-            isolated = np.array(rows["isolated"])
-            _summary(f"measured isolated, split {args.measure}", isolated)
-            _ratios("measured isolated", isolated, np.array(rows["Eyring isolated"]))
-            series[f"measured ({args.measure}, isolated)"] = isolated
     if args.png:
         _plot(series, args.png)
         print(f"wrote {args.png}")
