@@ -71,7 +71,7 @@ class AcousticsConfig:
     ism_max_order: int = 3  # image-source reflection order (cost grows ~ walls ** order)
     tail: bool = True  # ray-traced late reverberation
     n_rays: int = 1000
-    scattering: float = 0.3  # diffuse share of every reflection (stands in for unmodelled furniture)
+    scattering: float = 0.3  # diffuse share of every reflection (furniture and clutter scatter)
     receiver_radius: float = 0.5  # m: ray-tracing receiver sphere
     hist_bin: float = 0.004  # s: ray-tracing energy histogram resolution
     wall_transmission_db: float = 40.0  # dB lost per wall crossed by a blocked direct path
@@ -134,7 +134,7 @@ class AcousticsConfig:
         """Short hash of everything that changes results: settings, code version, libraries."""
         payload = json.dumps(
             {"config": asdict(self), "version": VERSION, "pyroomacoustics": pra.__version__,
-             "hrtf": "MIT_KEMAR_normal_pinna"},
+             "hrtf": "MIT_KEMAR_normal_pinna, diffuse-field equalised"},
             sort_keys=True,
         )
         return hashlib.sha256(payload.encode()).hexdigest()[:16]
