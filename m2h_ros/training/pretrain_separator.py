@@ -23,7 +23,9 @@ target. Best validation epoch kept.
 Resumable: after every epoch the whole training state (weights, optimizer, best weights, history,
 stream position) is written atomically to ``<out stem>.state.pt``; running the same command again
 continues from there (batches are a function of their index, so the continuation equals an
-uninterrupted run). The state file is removed when the run completes.
+uninterrupted run). The epoch counts may change on resume: a run stopped during stage 1 and rerun
+with ``--epochs`` = the epochs it completed goes on to stage 2 (a wall-clock budget without
+guessing the throughput up front). The state file is removed when the run completes.
 
 Outputs: the checkpoint (``save_separator``: model args, STFT, classes, metadata), ``<stem>.json``
 (metadata: data, epochs, wall times, throughput, machine, losses, command) and ``<stem>_loss.png``.
@@ -129,8 +131,11 @@ class PretrainConfig:
         self.model.check_stft(self.train_data.env.stft)
 
     def result_fields(self) -> dict[str, Any]:
-        """The fields a resumed run must share with the run it continues."""
-        return {k: v for k, v in dataclasses.asdict(self).items() if k not in ("threads", "workers")}
+        """The fields a resumed run must share with the run it continues. Not the epoch counts: the
+        learning rate is constant and batch i is the same in any run, so continuing with more (or
+        fewer) epochs of the current stage is the run that had that many from the start."""
+        return {k: v for k, v in dataclasses.asdict(self).items()
+                if k not in ("threads", "workers", "epochs", "refiner_epochs")}
 
 
 @dataclass
@@ -401,13 +406,14 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
 
     history = state.history
     best1, best2 = state.best["stage1"]["epoch"], state.best["stage2"]["epoch"]
-    samples = {"stage1": config.epochs * config.batches_per_epoch * config.train_data.batch_size,
-               "stage2": config.refiner_epochs * config.refiner_batches_per_epoch * config.refiner_data.batch_size
+    samples = {"stage1": len(history["stage1"]) * config.batches_per_epoch * config.train_data.batch_size,
+               "stage2": len(history["stage2"]) * config.refiner_batches_per_epoch * config.refiner_data.batch_size
                * config.refiner_data.steps}
     seconds = {k: round(v, 1) for k, v in state.seconds.items()}
     metadata = {
         "command": command or "pretrain()",
         "config": {k: v for k, v in dataclasses.asdict(config).items() if k not in ("model",)},
+        "epochs_run": {stage: len(history[stage]) for stage in STAGES},
         "parameters": count_parameters(separator),
         # What m2h-separate scales recordings to: the unaugmented conditions the separator is scored in.
         "mixture_power": float(torch.cat([b.power.flatten() for b in val]).mean()),

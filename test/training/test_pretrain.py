@@ -102,7 +102,15 @@ def test_a_state_of_another_configuration_is_refused(config, folder_library, tmp
                  on_epoch=lambda *_: (_ for _ in ()).throw(Interrupt))
     with pytest.raises(CheckpointError, match="another configuration"):
         pretrain(dataclasses.replace(config, lr=1e-3), folder_library, out=out, progress=False)
-    # --fresh ignores it (and then replaces it).
+    # Other epoch counts are the same run, stopped elsewhere: a stage-1 state continues with them.
+    cut = pretrain(dataclasses.replace(config, epochs=1, refiner_epochs=1), folder_library, out=out,
+                   progress=False, on_epoch=lambda *_: None)
+    assert cut.metadata["resumed_from"] == {"stage": "stage1", "epoch": 1}
+    assert cut.metadata["epochs_run"] == {"stage1": 1, "stage2": 1}
+    # --fresh ignores a state (and then replaces it).
+    with pytest.raises(Interrupt):
+        pretrain(config, folder_library, out=out, progress=False,
+                 on_epoch=lambda *_: (_ for _ in ()).throw(Interrupt))
     result = pretrain(dataclasses.replace(config, epochs=1, refiner_epochs=1), folder_library, out=out,
                       progress=False, fresh=True, on_epoch=lambda *_: None)
     assert result.metadata["resumed_from"] is None and not state_path(out).exists()
