@@ -10,7 +10,7 @@ bad is skipped, an unknown type is reported per topic. Only errors that leave no
 such path, not MCAP, not the ``ros2`` profile, a storage other than MCAP) raise.
 
 Message definitions are checked against this checkout's ``m2h_msgs`` (and Jazzy's standard types) by
-type hash: from ``metadata.yaml`` when present, else computed from the schema text in the file.
+type hash, computed from the schema text in the file (else taken from ``metadata.yaml``).
 """
 
 from __future__ import annotations
@@ -122,6 +122,7 @@ class _FileState:
     path: Path
     schemas: dict[int, _Schema] = field(default_factory=dict)
     channels: dict[int, ChannelInfo] = field(default_factory=dict)
+    undeclared: dict[int, int] = field(default_factory=dict)  # channel id -> messages skipped
 
 
 class BagStream:
@@ -236,6 +237,8 @@ class BagStream:
                 if message is not None:
                     yield message
         self.stats.bytes += size
+        for channel_id, count in state.undeclared.items():
+            self._problem(f"{path}: {count} message(s) on channel {channel_id}, whose declaration was lost, skipped")
         return closed
 
     def _check_start(self, stream: BinaryIO, path: Path) -> None:
@@ -294,8 +297,9 @@ class BagStream:
         if op == OP_MESSAGE:
             channel_id, _, log_time, _ = MESSAGE_HEAD.unpack_from(body, 0)
             channel = state.channels.get(channel_id)
-            if channel is None:
-                raise ValueError(f"message on undeclared channel {channel_id}")
+            if channel is None:  # its channel record was in a lost or corrupt chunk
+                state.undeclared[channel_id] = state.undeclared.get(channel_id, 0) + 1
+                return None
             self.stats.messages += 1
             if topics is None or channel.topic in topics:
                 return RawMessage(channel.topic, channel.msgtype, log_time, body[MESSAGE_HEAD.size:])
@@ -321,12 +325,14 @@ class BagStream:
         if schema is None:
             self._problem(f"{state.path}: topic {topic} has no message definition in the bag; not decoded")
             return ChannelInfo(topic, "", encoding, "", False)
-        type_hash = self._listed_hashes.get(topic) or metadata.get("topic_type_hash", "")
-        if not type_hash and schema.encoding == "ros2msg":
+        # The schema text is what the data was written with; a listed hash only stands in for it.
+        type_hash = ""
+        if schema.encoding == "ros2msg":
             try:
                 type_hash = definition_hash(schema.name, schema.text)
             except Exception as exc:  # rosbags' parser raises its own types for bad .msg text
                 self._problem(f"{state.path}: topic {topic}: cannot parse the definition of {schema.name} ({exc})")
+        type_hash = type_hash or self._listed_hashes.get(topic) or metadata.get("topic_type_hash", "")
         ours = m2h_typestore()
         known = encoding == "cdr" and schema.name in ours.types and type_hash == ours.hash_rihs01(schema.name)
         if schema.name in ours.types and not known:

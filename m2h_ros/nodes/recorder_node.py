@@ -24,10 +24,11 @@ class RecorderNode(Node):
         super().__init__("recorder_node")
         self.config: RecorderConfig = declare_config(self, RecorderConfig)
         output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
-        self.writer = BagWriter(Path(output))
+        self.writer = BagWriter(Path(output), flush_period_s=self.config.flush_period_s)
         self.recorded: dict[str, str] = {}  # topic -> type name
         self.counts: dict[str, int] = {}
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
+        self.flusher = self.create_timer(self.config.flush_period_s, self.writer.flush)  # idle stretches too
         self.discover_topics()
         self.get_logger().info(f"recording to {self.writer.path}")
 
