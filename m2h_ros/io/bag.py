@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import shutil
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rosbags.interfaces import Qos
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.typesys.store import Typestore
 
@@ -52,13 +53,21 @@ class BagWriter:
         except WriterError as exc:
             raise BagError(f"cannot create bag {self.path}: {exc}") from exc
 
+    def add_topic(self, topic: str, msgtype: str, *, offered_qos: Sequence[Qos] = ()) -> None:
+        """Declare a topic before its first message, with the QoS its publishers offer (rosbag2 lists
+        them in metadata.yaml and the MCAP channel, and ``ros2 bag play`` republishes with them)."""
+        if topic in self._connections:
+            raise BagError(f"topic {topic} is already in the bag")
+        if msgtype not in self._typestore.types:
+            raise BagError(f"unknown message type {msgtype!r} for topic {topic}")
+        self._connections[topic] = self._writer.add_connection(
+            topic, msgtype, typestore=self._typestore, offered_qos_profiles=list(offered_qos))
+
     def _connection(self, topic: str, msgtype: str):
         conn = self._connections.get(topic)
         if conn is None:
-            if msgtype not in self._typestore.types:
-                raise BagError(f"unknown message type {msgtype!r} for topic {topic}")
-            conn = self._writer.add_connection(topic, msgtype, typestore=self._typestore)
-            self._connections[topic] = conn
+            self.add_topic(topic, msgtype)
+            conn = self._connections[topic]
         elif conn.msgtype != msgtype:
             raise BagError(f"topic {topic} was recorded as {conn.msgtype}, now offered as {msgtype}")
         return conn

@@ -8,9 +8,10 @@ from pathlib import Path
 import rclpy
 from rclpy.node import Node
 
+from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
 from m2h_ros.node_configs import RecorderConfig
-from m2h_ros.ros.introspection import adapted_qos, message_class
+from m2h_ros.ros.introspection import adapted_qos, message_class, offered_qos
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import subscription_events
 from m2h_ros.ros.spin import run_node
@@ -45,6 +46,12 @@ class RecorderNode(Node):
                 msg_type = message_class(types[0])
             except (ImportError, AttributeError, ValueError):
                 self.get_logger().warning(f"not recording {topic}: type {types[0]} is not importable")
+                self.recorded[topic] = ""
+                continue
+            try:
+                self.writer.add_topic(topic, types[0], offered_qos=offered_qos(self, topic))
+            except BagError as exc:
+                self.get_logger().warning(f"not recording {topic}: {exc}")
                 self.recorded[topic] = ""
                 continue
             self.recorded[topic] = types[0]
