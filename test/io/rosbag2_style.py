@@ -38,33 +38,43 @@ def rosbag2_definition(msgtype: str) -> str:
     return text
 
 
-def rewrite_as_rosbag2(source: Path, target: Path, *, definitions: dict[str, str] | None = None) -> Path:
+def rewrite_as_rosbag2(source: Path, target: Path, *, definitions: dict[str, str] | None = None,
+                       split_every: int | None = None) -> Path:
     """Copy every message of ``source`` into a rosbag2-recorded-style bag at ``target``.
-    ``definitions`` overrides the schema text of some types (to make a foreign definition)."""
+    ``definitions`` overrides the schema text of some types (to make a foreign definition);
+    ``split_every`` starts a new file (``NAME_1.mcap``, ...) after that many messages, as
+    ``ros2 bag record --max-bag-size`` does (each file declares its own schemas and channels)."""
     target.mkdir(parents=True)
-    mcap_path = target / f"{target.name}_0.mcap"
     stream = BagStream(source)
-    channels: dict[str, int] = {}
     counts: dict[str, int] = {}
+    files: list[str] = []
     start, end = None, 0
-    with mcap_path.open("wb") as out:
-        writer = Writer(out, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
-        writer.start(profile="ros2", library="rosbag2-like (mcap python)")
-        schemas: dict[str, int] = {}
-        for message in stream.messages():
-            if message.topic not in channels:
-                if message.msgtype not in schemas:
-                    text = (definitions or {}).get(message.msgtype) or rosbag2_definition(message.msgtype)
-                    schemas[message.msgtype] = writer.register_schema(message.msgtype, "ros2msg", text.encode())
-                channels[message.topic] = writer.register_channel(
-                    message.topic, "cdr", schemas[message.msgtype], metadata={"offered_qos_profiles": "[]"})
-                counts[message.topic] = 0
-            counts[message.topic] += 1
-            writer.add_message(channels[message.topic], message.log_time, bytes(message.data),
-                               message.log_time - 500, sequence=counts[message.topic])
-            start = message.log_time if start is None else min(start, message.log_time)
-            end = max(end, message.log_time)
-        writer.finish()
+    out = writer = None
+    schemas: dict[str, int] = {}
+    channels: dict[str, int] = {}
+    for k, message in enumerate(stream.messages()):
+        if writer is None or (split_every and k % split_every == 0):
+            if writer is not None:
+                writer.finish()
+                out.close()
+            files.append(f"{target.name}_{len(files)}.mcap")
+            out = (target / files[-1]).open("wb")
+            writer = Writer(out, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
+            writer.start(profile="ros2", library="rosbag2-like (mcap python)")
+            schemas, channels = {}, {}
+        if message.topic not in channels:
+            if message.msgtype not in schemas:
+                text = (definitions or {}).get(message.msgtype) or rosbag2_definition(message.msgtype)
+                schemas[message.msgtype] = writer.register_schema(message.msgtype, "ros2msg", text.encode())
+            channels[message.topic] = writer.register_channel(
+                message.topic, "cdr", schemas[message.msgtype], metadata={"offered_qos_profiles": "[]"})
+        counts[message.topic] = counts.get(message.topic, 0) + 1
+        writer.add_message(channels[message.topic], message.log_time, bytes(message.data),
+                           message.log_time - 500, sequence=counts[message.topic])
+        start = message.log_time if start is None else min(start, message.log_time)
+        end = max(end, message.log_time)
+    writer.finish()
+    out.close()
     store = typestore()
     topics = [{"topic_metadata": {"name": topic, "type": stream.channels[topic].msgtype, "serialization_format": "cdr",
                                   "offered_qos_profiles": [],
@@ -73,9 +83,9 @@ def rewrite_as_rosbag2(source: Path, target: Path, *, definitions: dict[str, str
     info = {"version": 9, "storage_identifier": "mcap", "duration": {"nanoseconds": end - start},
             "starting_time": {"nanoseconds_since_epoch": start}, "message_count": sum(counts.values()),
             "topics_with_message_count": topics, "compression_format": "", "compression_mode": "",
-            "relative_file_paths": [mcap_path.name],
-            "files": [{"path": mcap_path.name, "starting_time": {"nanoseconds_since_epoch": start},
-                       "duration": {"nanoseconds": end - start}, "message_count": sum(counts.values())}],
+            "relative_file_paths": files,
+            "files": [{"path": name, "starting_time": {"nanoseconds_since_epoch": start},
+                       "duration": {"nanoseconds": end - start}, "message_count": 0} for name in files],
             "custom_data": {}, "ros_distro": "jazzy"}
     (target / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
     return target

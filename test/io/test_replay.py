@@ -153,6 +153,15 @@ def test_rosbag2_written_bag_scores_the_same(near_bag, tmp_path):
     assert replay.ok and replay.comparison.steps == 15
 
 
+def test_split_rosbag2_bag_reads_across_files(near_bag, tmp_path):
+    bag, live = near_bag
+    other = rewrite_as_rosbag2(bag, tmp_path / "split", split_every=25)  # episodes span files
+    assert len(list(other.glob("*.mcap"))) > 5
+    replay = replay_bag(other)
+    same_results(replay.results, live)
+    assert replay.ok and replay.stats.files == len(list(other.glob("*.mcap")))
+
+
 def test_corrupt_zstd_chunk_is_skipped_and_later_episodes_scored(near_bag, tmp_path):
     bag, live = near_bag
     other = rewrite_as_rosbag2(bag, tmp_path / "rosbag2")
