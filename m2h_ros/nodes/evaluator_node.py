@@ -58,6 +58,7 @@ class EvaluatorNode(Node):
         self.parked: list[tuple[tuple[str, int], dict]] = []
         self.trackers: dict[str, EpisodeTracker] = {}
         self.controllers: dict[str, str] = {}
+        self.commands: dict[str, dict[int, int]] = {}  # episode -> step -> action not yet applied
         self.results: list[EpisodeResult] = []
         self.output = Path(self.config.output_dir) if self.config.output_dir else None
         self.get_logger().info(f"ready: results to {self.output or '(nowhere: output_dir is empty)'}")
@@ -75,11 +76,19 @@ class EvaluatorNode(Node):
 
     def on_command(self, msg: MotionCommand) -> None:
         self.controllers[msg.episode_id] = msg.controller
-        tracker = self.trackers.get(msg.episode_id)
+        self.commands.setdefault(msg.episode_id, {})[msg.step] = msg.action
+        self.apply_commands(msg.episode_id)
+
+    def apply_commands(self, episode_id: str) -> None:
+        """Commands can arrive before their episode's first step is scored: apply them in order."""
+        tracker = self.trackers.get(episode_id)
         if tracker is None:
             return
-        tracker.act(msg.step, msg.action)
-        self.finish_if_done(msg.episode_id)
+        pending = self.commands.get(episode_id, {})
+        while len(tracker.result.actions) in pending:
+            step = len(tracker.result.actions)
+            tracker.act(step, pending.pop(step))
+        self.finish_if_done(episode_id)
 
     def on_step(self, key: tuple[str, int], parts: dict) -> None:
         episode_id, step = key
@@ -105,7 +114,7 @@ class EvaluatorNode(Node):
             self.get_logger().warning(f"{episode_id} step {step}: its step 0 was never seen; not scored")
             return
         tracker.observe(step, **values, position=parts["odom"], at_target=truth_msg.at_target)
-        self.finish_if_done(episode_id)
+        self.apply_commands(episode_id)
 
     def finish_if_done(self, episode_id: str) -> None:
         """An episode ends at observation max_steps, or at the one after a far-target Stop."""
@@ -118,6 +127,7 @@ class EvaluatorNode(Node):
         r.controller = self.controllers.get(episode_id, r.controller)
         result = tracker.finish()
         del self.trackers[episode_id]
+        self.commands.pop(episode_id, None)
         self.results.append(result)
         self.pub_episode.publish(convert.episode_score_msg(result, stamp_ns=self.get_clock().now().nanoseconds))
         self.get_logger().info(f"{episode_id}: SI-SDR {result.final('si_sdr'):.2f} dB (GT phase), "
