@@ -166,3 +166,18 @@ time.sleep(0.5)
 pub.publish(convert.audio_msg(samples, sample_rate=16000, episode_id="probe", step=0, stamp_ns=1))
 rclpy.spin(node)
 """
+
+
+def test_replayed_bag_scores_equal_the_live_ones(tiny_run):
+    """m2h-eval's core on the recorded bag: the evaluator's results exactly (same code, same data)."""
+    from m2h_ros.core.results import read_results
+    from m2h_ros.io.replay import replay_bag
+
+    out, _ = tiny_run
+    replay = replay_bag(out / "bag")
+    assert replay.problems == [] and replay.comparison.mismatches == [], \
+        [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
+    live = read_results(out / "scores" / "results.json")
+    assert [r.to_dict() for r in replay.results] == [r.to_dict() for r in live], \
+        (replay.results, live)
+    assert replay.comparison.steps == sum(len(r.si_sdr) for r in live) and replay.comparison.episodes == 2
