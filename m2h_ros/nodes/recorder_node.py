@@ -38,6 +38,10 @@ class RecorderNode(Node):
         for topic, types in self.get_topic_names_and_types():
             if topic in self.recorded or topic in IGNORED_TOPICS or (wanted and topic not in wanted):
                 continue
+            # A topic seen only through its subscribers has no offer to adapt to (a best-effort
+            # subscription would drop messages under load): wait for a publisher, as rosbag2 does.
+            if not self.get_publishers_info_by_topic(topic):
+                continue
             if len(types) != 1:
                 self.get_logger().warning(f"not recording {topic}: it carries several types {types}")
                 self.recorded[topic] = ""
