@@ -180,3 +180,17 @@ def test_free_running_counts_dropped_steps(small_library, small_data_dir, tmp_pa
     episode = read_results(tmp_path / "scores" / "results.json")[0]
     assert len(episode.si_sdr) == episode.steps + 1 == 21
     assert 0 < dropped == episode.actions.count(-1)
+
+
+def test_replayed_bag_scores_equal_the_live_ones(tiny_run):
+    """m2h-eval's core on the recorded bag: the evaluator's results exactly (same code, same data)."""
+    from m2h_ros.io.replay import replay_bag
+
+    out, _ = tiny_run
+    replay = replay_bag(out / "bag")
+    assert replay.problems == [] and replay.comparison.mismatches == [], \
+        [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
+    live = read_results(out / "scores" / "results.json")
+    assert [r.to_dict() for r in replay.results] == [r.to_dict() for r in live], \
+        (replay.results, live)
+    assert replay.comparison.steps == sum(len(r.si_sdr) for r in live) and replay.comparison.episodes == 2
