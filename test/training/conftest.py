@@ -21,6 +21,10 @@ def training_data_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(autouse=True)
 def _data_dir(monkeypatch, training_data_dir):
+    from m2h_ros.core.sounds.sources import sources_dir
+
+    # The fetched sound packages (and the HRTF in them) stay where set-up put them.
+    monkeypatch.setenv("M2H_SOUND_SOURCES", str(sources_dir()))
     monkeypatch.setenv("M2H_DATA_DIR", str(training_data_dir))
 
 
