@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from m2h_ros.core.sounds.sources import sources_dir
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
@@ -19,9 +20,14 @@ def training_data_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("training_data")
 
 
+# The HRTF comes from the fetched sound sources of the real data dir, which _data_dir hides.
+SOUND_SOURCES = sources_dir()
+
+
 @pytest.fixture(autouse=True)
 def _data_dir(monkeypatch, training_data_dir):
     monkeypatch.setenv("M2H_DATA_DIR", str(training_data_dir))
+    monkeypatch.setenv("M2H_SOUND_SOURCES", str(SOUND_SOURCES))
 
 
 @pytest.fixture(scope="session")
