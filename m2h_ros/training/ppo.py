@@ -700,3 +700,43 @@ def train(config: PPOConfig, library: SoundLibrary, *, out_dir: Path, rir_cache_
         return trainer.run(fresh=fresh, stop_after=stop_after)
     finally:
         trainer.env.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse  # noqa: PLC0415
+    import shlex  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    parser = argparse.ArgumentParser(description="Train a learned controller with PPO (DD-PPO under torchrun).")
+    parser.add_argument("--kind", required=True, choices=sorted(KINDS))
+    parser.add_argument("--preset", default="compact", choices=PRESET_NAMES)
+    parser.add_argument("--updates", type=int, default=PPOConfig.updates)
+    parser.add_argument("--n-envs", type=int, default=PPOConfig.n_envs)
+    parser.add_argument("--n-steps", type=int, default=PPOConfig.n_steps)
+    parser.add_argument("--episodes", type=int, default=2000, help="training episodes (train scenes, heard sounds)")
+    parser.add_argument("--task", choices=("near_target", "far_target"), help="default: the kind's")
+    parser.add_argument("--separator", default=str(DEFAULT_SEPARATOR_CHECKPOINT))
+    parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=PPOConfig.threads)
+    parser.add_argument("--checkpoint-every", type=int, default=PPOConfig.checkpoint_every)
+    parser.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    parser.add_argument("--out", type=Path, help="run directory (default runs/policy_<kind>)")
+    parser.add_argument("--fresh", action="store_true", help="start over even if --out holds a resume state")
+    args = parser.parse_args(argv)
+    task = args.task or KINDS[args.kind].task
+    episodes = EpisodeConfig(task=task, scene_split="train", sound_split="heard", count=args.episodes, seed=args.seed,
+                             max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
+    config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
+                       env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
+                       n_steps=args.n_steps, updates=args.updates, seed=args.seed, threads=args.threads,
+                       checkpoint_every=args.checkpoint_every, device=args.device)
+    command = shlex.join(["python", "scripts/train_policy.py", *(sys.argv[1:] if argv is None else argv)])
+    result = train(config, SoundLibrary.load(), out_dir=args.out or Path("runs") / f"policy_{args.kind}",
+                   command=command, fresh=args.fresh)
+    if dist.is_initialized():
+        dist.destroy_process_group()
+    last = result.history[-1] if result.history else {}
+    print(f"[train_policy] {args.kind}: {last.get('update', 0)} updates, {last.get('env_steps', 0)} env steps; "
+          f"policy {result.checkpoint}, log {result.out_dir / 'log.csv'}, curve {result.out_dir / 'curve.png'}")
+    return 0

@@ -58,3 +58,16 @@ def small_train_set(small_train_data, folder_library, training_data_dir) -> Sepa
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("M2H_DATA_DIR", str(training_data_dir))
         return separator_dataset(small_train_data, folder_library, n_envs=4, progress=False)
+
+
+@pytest.fixture(scope="session")
+def separator_path(tmp_path_factory) -> Path:
+    """An untrained tiny separator checkpoint (widths 8..16), enough to drive policy training."""
+    import torch
+
+    from m2h_ros.models.checkpoint import save_separator
+    from m2h_ros.models.separator import Separator, SeparatorConfig
+
+    torch.manual_seed(0)
+    separator = Separator(SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)).eval()
+    return save_separator(tmp_path_factory.mktemp("separator") / "tiny.pt", separator, classes=("speech", "music"))

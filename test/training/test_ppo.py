@@ -11,20 +11,13 @@ import torch
 from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.errors import CheckpointError
-from m2h_ros.models.checkpoint import load_separator, save_separator
+from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.policy import load_policy
-from m2h_ros.models.separator import Separator, SeparatorConfig
+from m2h_ros.models.separator import SeparatorConfig
 from m2h_ros.training.ppo import PPOConfig, PPOTrainer, gae, nmse, train
 
-TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)
+TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)  # as separator_path's
 STEPS = 4
-
-
-@pytest.fixture(scope="module")
-def separator_path(tmp_path_factory):
-    torch.manual_seed(0)
-    return save_separator(tmp_path_factory.mktemp("sep") / "sep.pt", Separator(TINY_SEPARATOR).eval(),
-                          classes=("speech", "music"))
 
 
 def tiny(fast_env, separator_path, **overrides) -> PPOConfig:
