@@ -22,9 +22,9 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
 4. ``ppo_epochs`` passes of ``n_minibatches`` minibatches (whole slot sequences, the GRU re-run from
    the rollout's first hidden state): clipped surrogate x action_coef + clipped value loss x
    value_coef - entropy x entropy_coef; Adam, gradient norm clipped; lr and clip decay linearly.
-5. f^R (``train_refiner``, default for ``quality`` only): the same number of passes of L1 between
+5. f^R (``train_refiner``, default for ``quality`` only): ``refiner_epochs`` passes of L1 between
    f^R(f^M estimate, stored memory) and the ground-truth magnitude, Adam ``refiner_lr`` (the
-   original's lr_sep 5e-4), as the original's ``update_sep``; f^R's BatchNorm keeps its pretrained
+   original's lr_sep 5e-4), as the original's ``update_sep`` (ppo_epoch passes: 4); f^R's BatchNorm keeps its pretrained
    statistics (eval mode) so acting and training compute the same function. The trained separator
    is written beside the policy (``separator.pt``): pair them at evaluation.
 
@@ -122,6 +122,7 @@ class PPOConfig:
     max_grad_norm: float = 0.5
     linear_decay: bool = True  # lr and clip decay linearly to 0 over ``updates``
     train_refiner: bool | None = None  # None: the kind's
+    refiner_epochs: int = 4  # passes of f^R's L1 over each rollout (the original: ppo_epoch)
     final_nmse_weight: float = 10.0  # quality: -weight x NMSE at the last step
     seed: int = 0
     threads: int = 2  # torch intra-op threads and env render threads
@@ -137,7 +138,7 @@ class PPOConfig:
             raise ConfigError("PPOConfig.episodes must be an EpisodeConfig or None")
         if not isinstance(self.env, EnvConfig):
             raise ConfigError("PPOConfig.env must be an EnvConfig")
-        for name, low in (("n_envs", 1), ("n_steps", 1), ("updates", 1), ("ppo_epochs", 1), ("n_minibatches", 1),
+        for name, low in (("n_envs", 1), ("n_steps", 1), ("updates", 1), ("ppo_epochs", 1), ("refiner_epochs", 1), ("n_minibatches", 1),
                           ("seed", 0), ("threads", 1), ("checkpoint_every", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -351,7 +352,7 @@ class PPOTrainer:
         self.rng = np.random.default_rng([config.seed, self.rank])
         self.update, self.env_steps, self.history = 0, 0, []
         self.windows = {"return": deque(maxlen=50), "final_nmse": deque(maxlen=50), "success": deque(maxlen=50)}
-        self.times = np.zeros(3)  # sim, separator, policy (seconds, this worker)
+        self.times = np.zeros(4)  # sim, separator (+ f^R training), acting, policy update (s, this worker)
         self.wall_before = 0.0  # seconds spent in earlier sessions of this run
         self.resume_path = self.out_dir / ("resume.pt" if self.world == 1 else f"resume.rank{self.rank}.pt")
 
@@ -500,8 +501,10 @@ class PPOTrainer:
         for _ in range(cfg.ppo_epochs):
             order = self.rng.permutation(n)
             for b in range(cfg.n_minibatches):
-                slots = torch.from_numpy(order[b * per_batch: (b + 1) * per_batch])
-                batch = PolicyInputs(*(None if x is None else x[:, slots] for x in inputs)).flat().to(dev)
+                # Sorted: one minibatch of all slots then needs no copy of the inputs.
+                slots = torch.from_numpy(np.sort(order[b * per_batch: (b + 1) * per_batch]))
+                rows = slice(None) if per_batch == n else slots
+                batch = PolicyInputs(*(None if x is None else x[:, rows] for x in inputs)).flat().to(dev)
                 out = self.net.evaluate(batch, self.hidden_start[slots.to(dev)], starts[:, slots].to(dev))
                 log_probs_all = torch.log_softmax(out.logits, dim=-1)
                 log_prob = log_probs_all.gather(2, actions[:, slots, None].to(dev))[..., 0]
@@ -537,7 +540,7 @@ class PPOTrainer:
         params = list(self.separator.refiner.parameters())
         per_batch = cfg.n_envs // cfg.n_minibatches
         total, count = 0.0, 0
-        for _ in range(cfg.ppo_epochs):
+        for _ in range(cfg.refiner_epochs):
             order = self.rng.permutation(cfg.n_envs)
             for b in range(cfg.n_minibatches):
                 slots = torch.from_numpy(order[b * per_batch: (b + 1) * per_batch])
@@ -647,17 +650,18 @@ class PPOTrainer:
         session_updates = 0
         try:
             while self.update < cfg.updates and (stop_after is None or session_updates < stop_after):
-                started, times_before = time.perf_counter(), self.times.copy()
+                started, cpu, times_before = time.perf_counter(), time.process_time(), self.times.copy()
                 rollout, next_value, finished = self._collect()
                 tick = time.perf_counter()
                 losses = self._update_policy(rollout, next_value)
-                self.times[2] += time.perf_counter() - tick
+                self.times[3] += time.perf_counter() - tick
                 tick = time.perf_counter()
                 losses["refiner_l1"] = self._update_refiner(rollout) if self.refining else float("nan")
                 self.times[1] += time.perf_counter() - tick
                 self.update += 1
                 session_updates += 1
-                self._log(finished, losses, time.perf_counter() - started, self.times - times_before)
+                self._log(finished, losses, time.perf_counter() - started, time.process_time() - cpu,
+                          self.times - times_before)
                 bar.update()
                 bar.set_postfix(ret=f"{self.history[-1]['return_window']:.3f}", sps=f"{self.history[-1]['sps']:.0f}")
                 if self.update % cfg.checkpoint_every == 0 or self.update == cfg.updates \
@@ -667,7 +671,7 @@ class PPOTrainer:
             bar.close()
         return TrainResult(self.net, self.out_dir, self.history, policy)
 
-    def _log(self, finished: list[dict[str, float]], losses: dict[str, float], seconds: float,
+    def _log(self, finished: list[dict[str, float]], losses: dict[str, float], seconds: float, cpu: float,
              times: np.ndarray) -> None:
         keys = ("return", "final_nmse", "success")
         local = np.array([len(finished)] + [sum(r.get(k, 0.0) for r in finished) for k in keys])
@@ -685,8 +689,9 @@ class PPOTrainer:
             "update": self.update, "env_steps": self.env_steps, "episodes": episodes,
             "return_window": window("return"), "final_nmse_window": window("final_nmse"),
             "success_window": window("success"), **losses, "lr": self.config.lr * self._decay(),
-            "sps": steps / seconds, **{f"{part}_share": float(share / seconds)
-                                       for part, share in zip(("sim", "separator", "policy"), times, strict=True)},
+            "sps": steps / seconds, "cpu_ms_per_step": 1e3 * cpu * self.world / steps, **{f"{part}_share": float(share / seconds)
+                                       for part, share in zip(("sim", "separator", "act", "update"), times,
+                                                              strict=True)},
         })
 
 

@@ -106,7 +106,7 @@ def test_area_downsample_averages_blocks():
     rgb[0, :2, :2] = 100
     rgb[0, 0, 0] = 200
     out = area_downsample(rgb, 2)
-    assert out.shape == (1, 3, 2, 2) and out[0, 0, 0, 0] == 125 and out[0, 2, 1, 1] == 0
+    assert out.shape == (1, 3, 2, 2) and out[0, 0, 0, 0] == 125 and out[0, 2, 1, 1] == 0 and out.dtype == torch.uint8
     with pytest.raises(ConfigError, match="multiple"):
         area_downsample(np.zeros((1, 5, 5, 3), np.uint8), 2)
     with pytest.raises(ConfigError, match="too small"):
