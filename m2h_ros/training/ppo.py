@@ -93,6 +93,7 @@ KINDS = {
     "novelty": KindSpec("separation", False, "novelty", "near_target", 0.2, False),
     "av_navigator": KindSpec("mixture", True, "navigation", "far_target", 0.2, False),
 }
+TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
 
 
@@ -200,6 +201,8 @@ class TrainResult:
 def init_distributed() -> tuple[int, int]:
     """(rank, world size): joins the torchrun group when launched by torchrun, else (0, 1)."""
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
+        if torch.cuda.is_available():
+            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))  # one GPU per worker
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
     if dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()
@@ -352,7 +355,7 @@ class PPOTrainer:
         self.rng = np.random.default_rng([config.seed, self.rank])
         self.update, self.env_steps, self.history = 0, 0, []
         self.windows = {"return": deque(maxlen=50), "final_nmse": deque(maxlen=50), "success": deque(maxlen=50)}
-        self.times = np.zeros(4)  # sim, separator (+ f^R training), acting, policy update (s, this worker)
+        self.times = np.zeros(5)  # sim, separator, acting, policy update, f^R update (seconds, this worker)
         self.wall_before = 0.0  # seconds spent in earlier sessions of this run
         self.resume_path = self.out_dir / ("resume.pt" if self.world == 1 else f"resume.rank{self.rank}.pt")
 
@@ -657,7 +660,7 @@ class PPOTrainer:
                 self.times[3] += time.perf_counter() - tick
                 tick = time.perf_counter()
                 losses["refiner_l1"] = self._update_refiner(rollout) if self.refining else float("nan")
-                self.times[1] += time.perf_counter() - tick
+                self.times[4] += time.perf_counter() - tick
                 self.update += 1
                 session_updates += 1
                 self._log(finished, losses, time.perf_counter() - started, time.process_time() - cpu,
@@ -690,8 +693,7 @@ class PPOTrainer:
             "return_window": window("return"), "final_nmse_window": window("final_nmse"),
             "success_window": window("success"), **losses, "lr": self.config.lr * self._decay(),
             "sps": steps / seconds, "cpu_ms_per_step": 1e3 * cpu * self.world / steps, **{f"{part}_share": float(share / seconds)
-                                       for part, share in zip(("sim", "separator", "act", "update"), times,
-                                                              strict=True)},
+                                       for part, share in zip(TIMED_PARTS, times, strict=True)},
         })
 
 

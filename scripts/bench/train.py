@@ -1,6 +1,6 @@
 """PPO training throughput: environment steps/s of the compact policy on the test scenes, and the share
-of an update's wall time spent in the simulator, the separator (inference + f^R training), acting
-(policy inputs + forward) and the PPO update.
+of an update's wall time spent in the simulator, the separator (f^B, f^M, f^R inference), acting
+(policy inputs + forward), the PPO update and the f^R update (quality only).
 
     python scripts/bench/train.py [--kind quality] [--updates 4] [--repeats 3] [--n-envs 16] [--threads 2]
 
@@ -25,9 +25,7 @@ import numpy as np
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
-from m2h_ros.training.ppo import KINDS, PPOConfig, PPOTrainer
-
-PARTS = ("sim", "separator", "act", "update")
+from m2h_ros.training.ppo import KINDS, TIMED_PARTS, PPOConfig, PPOTrainer
 
 
 def main() -> None:
@@ -61,7 +59,7 @@ def main() -> None:
                 trainer.env.close()
         sps = [h["sps"] for h in history]
         cpu = np.median([h["cpu_ms_per_step"] for h in history])
-        shares = {p: np.median([h[f"{p}_share"] for h in history]) for p in PARTS}
+        shares = {p: np.median([h[f"{p}_share"] for h in history]) for p in TIMED_PARTS}
         print(f"repeat {repeat + 1}: {np.median(sps):.0f} env steps/s (updates {', '.join(f'{s:.0f}' for s in sps)}), "
               f"{cpu:.1f} CPU ms per env step (all threads); "
               + ", ".join(f"{p} {100 * v:.0f}%" for p, v in shares.items())
