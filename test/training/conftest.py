@@ -26,10 +26,6 @@ SOUND_SOURCES = sources_dir()
 
 @pytest.fixture(autouse=True)
 def _data_dir(monkeypatch, training_data_dir):
-    from m2h_ros.core.sounds.sources import sources_dir
-
-    # The fetched sound packages (and the HRTF in them) stay where set-up put them.
-    monkeypatch.setenv("M2H_SOUND_SOURCES", str(sources_dir()))
     monkeypatch.setenv("M2H_DATA_DIR", str(training_data_dir))
     monkeypatch.setenv("M2H_SOUND_SOURCES", str(SOUND_SOURCES))
 
