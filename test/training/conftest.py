@@ -62,3 +62,16 @@ def small_val_stream(small_stream) -> StreamConfig:
     episodes = tuple(dataclasses.replace(e, scene_split="val", sound_split="unheard") for e in small_stream.episodes)
     return dataclasses.replace(small_stream, episodes=episodes, batch_size=3, steps=3, gain_db=0.0,
                                noise_levels=(), noise_fraction=0.0)
+
+
+@pytest.fixture(scope="session")
+def separator_path(tmp_path_factory) -> Path:
+    """An untrained tiny separator checkpoint (widths 8..16), enough to drive policy training."""
+    import torch
+
+    from m2h_ros.models.checkpoint import save_separator
+    from m2h_ros.models.separator import Separator, SeparatorConfig
+
+    torch.manual_seed(0)
+    separator = Separator(SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)).eval()
+    return save_separator(tmp_path_factory.mktemp("separator") / "tiny.pt", separator, classes=("speech", "music"))
