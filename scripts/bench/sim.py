@@ -178,42 +178,18 @@ def sanity(library: SoundLibrary, episode_config: EpisodeConfig, acoustics: Acou
         print(f"  {name:34s} start pose {start:7.2f} dB   target node {target:7.2f} dB   {verdict}")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=200, help="timed batch steps per case")
-    parser.add_argument("--threads", type=int, default=2, help="BatchEnv threads")
-    parser.add_argument("--episodes", type=int, default=1000, help="test episodes (throughput and sanity)")
-    parser.add_argument("--pose-cache", type=int, default=32,
-                        help="BatchEnv pose-cache entries per slot (0: render every step)")
-    parser.add_argument("--build-workers", type=int, default=2, help="processes building RIR banks")
-    parser.add_argument("--fresh-build", action="store_true",
-                        help="also time a from-scratch bank build of every scene (minutes)")
-    parser.add_argument("--repeats", type=int, default=3, help="runs of each throughput case")
-    parser.add_argument("--rir-length", type=float, default=None,
-                        help="RIR length in s (default: the acoustics' default); other lengths build their banks")
-    parser.add_argument("--rir-spectra-mib", type=float, default=0.0,
-                        help="BatchEnv RIR spectrum cache (MiB, 0: off) in the throughput cases")
-    parser.add_argument("--skip-sanity", action="store_true")
-    args = parser.parse_args()
-    acoustics = AcousticsConfig() if args.rir_length is None else AcousticsConfig(rir_length=args.rir_length)
-    library, which = open_library()
-    print(f"sound library: {which}, {sum(len(library.infos(s)) for s in ('heard', 'unheard'))} clips")
-    build_banks(acoustics, args.build_workers)
-    if args.fresh_build:
-        fresh_builds(args.build_workers)
-    episode_config = EpisodeConfig(task="near_target", scene_split=SPLIT, sound_split="unheard",
-                                   count=args.episodes)
-    episodes_for(episode_config, library)   # cached once, before the workers read it
+def in_process(target, *target_args):
+    """``target(*target_args, queue)`` in a fresh (spawned) process; what it put on the queue."""
     context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    worker = context.Process(target=target, args=(*target_args, queue))
+    worker.start()
+    result = queue.get()
+    worker.join()
+    return result
 
-    def in_process(target, *target_args):
-        queue = context.Queue()
-        worker = context.Process(target=target, args=(*target_args, queue))
-        worker.start()
-        result = queue.get()
-        worker.join()
-        return result
 
+def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_config: EpisodeConfig) -> None:
     print(f"throughput ({args.steps} timed batch steps after 20 warm ones, uniformly random actions, "
           f"threads={args.threads}, pose cache {args.pose_cache}/slot, RIR spectrum cache "
           f"{args.rir_spectra_mib:g} MiB, RIR banks and views warm, {acoustics.rir_length} s RIRs):")
@@ -235,13 +211,45 @@ def main() -> None:
                   f"{100 * spectra_rate[0]:.0f}%, peak RSS {max(rss):.0f} MiB, load average before "
                   f"{' / '.join(f'{x:.1f}' for x in load)}")
     print(f"  16 batched / 1 env, camera on: {rates[16, True] / rates[1, True]:.1f}x (medians)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=200, help="timed batch steps per case")
+    parser.add_argument("--threads", type=int, default=2, help="BatchEnv threads")
+    parser.add_argument("--episodes", type=int, default=1000, help="test episodes (throughput and sanity)")
+    parser.add_argument("--pose-cache", type=int, default=32,
+                        help="BatchEnv pose-cache entries per slot (0: render every step)")
+    parser.add_argument("--build-workers", type=int, default=2, help="processes building RIR banks")
+    parser.add_argument("--fresh-build", action="store_true",
+                        help="also time a from-scratch bank build of every scene (minutes)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs of each throughput case")
+    parser.add_argument("--rir-length", type=float, default=None,
+                        help="RIR length in s (default: the acoustics' default); other lengths build their banks")
+    parser.add_argument("--rir-spectra-mib", type=float, default=0.0,
+                        help="BatchEnv RIR spectrum cache (MiB, 0: off) in the throughput cases")
+    parser.add_argument("--only-fresh", action="store_true",
+                        help="only the fresh-render figure (also runs against older BatchEnv versions)")
+    parser.add_argument("--skip-sanity", action="store_true")
+    args = parser.parse_args()
+    acoustics = AcousticsConfig() if args.rir_length is None else AcousticsConfig(rir_length=args.rir_length)
+    library, which = open_library()
+    print(f"sound library: {which}, {sum(len(library.infos(s)) for s in ('heard', 'unheard'))} clips")
+    build_banks(acoustics, args.build_workers)
+    if args.fresh_build:
+        fresh_builds(args.build_workers)
+    episode_config = EpisodeConfig(task="near_target", scene_split=SPLIT, sound_split="unheard",
+                                   count=args.episodes)
+    episodes_for(episode_config, library)   # cached once, before the workers read it
+    if not args.only_fresh:
+        throughputs(args, acoustics, episode_config)
     load = os.getloadavg()[0]
     fresh, fft, n_fft = in_process(fresh_render, acoustics, episode_config)
     print(f"fresh render (16 envs rendering every step, camera on, 1 thread, best of 5 blocks, load "
           f"average {load:.1f}): {fresh:.2f} ms CPU per env step; its bare FFT work "
           f"{sum(fft.values()):.2f} ms (" + ", ".join(f"{k} {v:.2f}" for k, v in fft.items())
           + f"; convolution length {n_fft}), so {fresh - sum(fft.values()):.2f} ms is not FFT")
-    if not args.skip_sanity:
+    if not (args.skip_sanity or args.only_fresh):
         sanity(library, episode_config, acoustics, args.threads)
 
 
