@@ -27,6 +27,7 @@ import os
 import resource
 import time
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
 from scipy import fft as sfft
@@ -184,7 +185,13 @@ def in_process(target, *target_args):
     queue = context.Queue()
     worker = context.Process(target=target, args=(*target_args, queue))
     worker.start()
-    result = queue.get()
+    while True:   # a worker that dies (e.g. on import) never puts: say so instead of waiting forever
+        try:
+            result = queue.get(timeout=1.0)
+            break
+        except Empty:
+            if not worker.is_alive():
+                raise RuntimeError(f"{target.__name__} worker exited with code {worker.exitcode}") from None
     worker.join()
     return result
 
