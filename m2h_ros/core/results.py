@@ -158,9 +158,10 @@ def markdown_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> s
 
 
 def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, title: str = "Results",
-                  meta: dict | None = None, plot: bool = True) -> dict[str, Path]:
+                  meta: dict | None = None, plot: bool = True, command: str | None = None) -> dict[str, Path]:
     """Write results.md, results.csv (one row per episode), results.json (episodes + summary + meta)
-    and si_sdr_vs_step.png into ``out_dir``; returns the paths by kind."""
+    and si_sdr_vs_step.png into ``out_dir``; returns the paths by kind. ``command``, the one line that
+    reproduces the results, heads the Markdown table."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows = summarize(results)
@@ -168,7 +169,8 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
     note = ("Final-step scores, mean ± 95% CI over episodes. SI-SDR (GT phase): the estimate rebuilt "
             "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
             "(mixture phase): rebuilt with the mixture's phase (deployable).\n")
-    paths["markdown"].write_text(f"# {title}\n\n{note}\n{markdown_table(rows)}")
+    how = f"Command: `{command}`\n\n" if command else ""
+    paths["markdown"].write_text(f"# {title}\n\n{how}{note}\n{markdown_table(rows)}")
     with paths["csv"].open("w", newline="") as stream:
         writer = csv.writer(stream)
         writer.writerow(["episode_id", *GROUP_KEYS, "scene_id", "target_class", "steps",
