@@ -9,7 +9,8 @@ ends a far-target episode (the AV-Navigator task), so a controller that wants to
 far-target turns left and right in place instead (:func:`hold_in_place`).
 
 All of them see only :class:`~m2h_ros.agents.base.ControllerObservation`: odometry, audio, separator
-outputs. The start pose is the pose of an episode's step-0 observation.
+outputs. The start pose is the pose of an episode's step-0 observation. docs/baselines.md has the
+choices made and the measurements behind them.
 """
 
 from __future__ import annotations
@@ -36,22 +37,15 @@ def hold_in_place(count: np.ndarray, far: np.ndarray) -> np.ndarray:
 
 
 class _Baseline(Controller):
-    """Per-slot helpers: the task of each slot and the start pose (from the step-0 observation)."""
+    """Keeps each slot's task (whether Stop would end its episode)."""
 
     def __init__(self, n_slots: int, *, seed: int = 0) -> None:
         super().__init__(n_slots, seed=seed)
         self.far = np.zeros(self.n_slots, bool)
-        self.start_xy = np.full((self.n_slots, 2), np.nan)
 
     def reset(self, slot: int, start: EpisodeStart) -> None:
         super().reset(slot, start)
         self.far[slot] = start.task == "far_target"
-        self.start_xy[slot] = np.nan
-
-    def act(self, obs: ControllerObservation) -> np.ndarray:
-        first = np.asarray(obs.step) == 0
-        self.start_xy[first] = obs.pose[first, :2]
-        return super().act(obs)
 
 
 class StandInPlace(_Baseline):
@@ -136,9 +130,12 @@ class ProximityPrior(_Baseline):
                 or radius <= 0:
             raise ConfigError(f"ProximityPrior radius={radius!r} must be a positive number of metres")
         self.radius = float(radius)
+        self.start_xy = np.zeros((self.n_slots, 2))
 
     def _act(self, obs: ControllerObservation) -> np.ndarray:
         pose = np.asarray(obs.pose, np.float64)
+        first = np.asarray(obs.step) == 0
+        self.start_xy[first] = pose[first, :2]
         ahead = pose[:, :2] + STEP_LENGTH * np.column_stack([np.cos(pose[:, 2]), np.sin(pose[:, 2])])
         outside = np.linalg.norm(ahead - self.start_xy, axis=1) > self.radius + 1e-6
         actions = np.empty(obs.n_slots, np.int64)
