@@ -8,7 +8,7 @@ import pytest
 from m2h_ros.agents.base import ControllerObservation, EpisodeStart
 from m2h_ros.agents.baselines import (DirectionOfArrival, MoveForward, ProximityPrior, RandomActions,
                                       RotateInPlace, StandInPlace)
-from m2h_ros.agents.registry import CONTROLLER_NAMES, make_controller
+from m2h_ros.agents.registry import TRAINING_FREE, make_controller
 from m2h_ros.agents.rollout import controller_observation
 from m2h_ros.core.audio.doa import gcc_phat_itd, interaural_level_difference, lateral_sine, max_itd_samples
 from m2h_ros.core.audio.stft import stft
@@ -66,7 +66,7 @@ def play(controller, episodes, library, env_config):
 
 
 def test_every_registered_training_free_controller_builds():
-    for name in CONTROLLER_NAMES:
+    for name in TRAINING_FREE:
         controller = make_controller(name, 2, seed=3)
         assert controller.name == name and controller.summary
     with pytest.raises(ConfigError, match="unknown controller 'nope'"):

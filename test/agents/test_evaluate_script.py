@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from m2h_ros.agents.registry import CONTROLLER_NAMES
+from m2h_ros.agents.registry import CONTROLLER_NAMES, TRAINING_FREE
 from m2h_ros.core.results import write_results
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "evaluate.py"
@@ -42,16 +42,16 @@ def test_every_controller_end_to_end_on_tiny_episodes(evaluate, small_episodes, 
                                                       tmp_path):
     episodes = small_episodes(count=2, max_steps=3, seed=5)
     args = evaluate.build_parser().parse_args(["--slots", "2", "--threads", "1", "--no-progress"])
-    results = evaluate.run(args, CONTROLLER_NAMES, episodes, loaded=separator, library=folder_library,
+    results = evaluate.run(args, list(TRAINING_FREE), episodes, loaded=separator, library=folder_library,
                            env_config=env_config)
-    assert [(r.controller, r.episode_id) for r in results] == [(c, e.episode_id) for c in CONTROLLER_NAMES
+    assert [(r.controller, r.episode_id) for r in results] == [(c, e.episode_id) for c in TRAINING_FREE
                                                                for e in episodes]
     paths = write_results(results, tmp_path, title="tiny", command="python scripts/evaluate.py --count 2")
     table = paths["markdown"].read_text()
     assert table.splitlines()[2] == "Command: `python scripts/evaluate.py --count 2`"
-    assert all(f"| {name} | near_target | unheard | 2 |" in table for name in CONTROLLER_NAMES)
+    assert all(f"| {name} | near_target | unheard | 2 |" in table for name in TRAINING_FREE)
     summary = json.loads(paths["json"].read_text())["summary"]
-    assert len(summary) == len(CONTROLLER_NAMES)
+    assert len(summary) == len(TRAINING_FREE)
     assert all(np.isfinite(row["si_sdr"]) and row["success_rate"] is None for row in summary)
     assert paths["plot"].stat().st_size > 0
     stand = [r for r in results if r.controller == "stand_in_place"]
