@@ -4,13 +4,14 @@
     python scripts/evaluate.py [--controllers stand_in_place,random,...] [--task near_target]
         [--sound-split heard,unheard] [--count 1000] [--first 0] [--slots 16] [--seed 0]
         [--mic-noise 0] [--checkpoint m2h_ros/models/default/separator_compact.pt]
-        [--out out/evaluate] [--threads 2] [--list]
+        [--out out/evaluate] [--threads 2] [--reference stand_in_place] [--list]
 
 Each controller plays every selected episode once on a batched environment (``--slots`` episodes at
 a time) with the separator (f^B, f^M, f^R) batched over the same slots, scored at every step by the
 same functions as the evaluator node. Prints the paper-style table (final-step SI-SDR in the
 ground-truth-phase and mixture-phase variants, STFT distance: mean ± 95% CI; SR and SPL for
-far-target) and writes results.md / .csv / .json and si_sdr_vs_step.png into ``--out``.
+far-target), each controller's final-step SI-SDR minus ``--reference``'s on the same episodes
+(paired: mean ± 95% CI), and writes results.md / .csv / .json and si_sdr_vs_step.png into ``--out``.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ import torch  # noqa: E402
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES, controller_class, make_controller  # noqa: E402
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
-from m2h_ros.core.results import EpisodeResult, markdown_table, summarize, write_results  # noqa: E402
+from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differences, paired_table,  # noqa: E402
+                                  summarize, write_results)
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
@@ -75,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output directory")
     parser.add_argument("--threads", type=int, default=2,
                         help="torch and rendering threads (2 suits 16 slots on 2 cores)")
+    parser.add_argument("--reference", default="stand_in_place",
+                        help="controller the others are compared with episode by episode (if evaluated)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--list", action="store_true", help="list the controllers and exit")
     return parser
@@ -129,12 +133,16 @@ def main(argv: list[str] | None = None) -> int:
                 "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
                 "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
                 "load_average": [round(x, 2) for x in os.getloadavg()]}
+        reference = args.reference if args.reference in controllers else None
         paths = write_results(results, args.out, title=f"{args.task} test episodes, {' + '.join(splits)} sounds",
-                              meta=meta, command=command)
+                              meta=meta, command=command, reference=reference)
     except M2HError as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)
         return 2
     print(markdown_table(summarize(results)))
+    if reference:
+        print(f"final-step SI-SDR (GT phase) minus {reference}'s, same episodes:")
+        print(paired_table(paired_differences(results, reference=reference)))
     print(f"{len(results)} episodes in {meta['wall_seconds']} s (load average {meta['load_average']})")
     for kind, path in paths.items():
         print(f"{kind}: {path}")

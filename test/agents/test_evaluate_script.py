@@ -46,8 +46,15 @@ def test_every_controller_end_to_end_on_tiny_episodes(evaluate, small_episodes, 
                            env_config=env_config)
     assert [(r.controller, r.episode_id) for r in results] == [(c, e.episode_id) for c in TRAINING_FREE
                                                                for e in episodes]
-    paths = write_results(results, tmp_path, title="tiny", command="python scripts/evaluate.py --count 2")
+    paths = write_results(results, tmp_path, title="tiny", command="python scripts/evaluate.py --count 2",
+                          reference="stand_in_place")
     table = paths["markdown"].read_text()
+    paired = json.loads(paths["json"].read_text())["paired"]
+    assert [row["controller"] for row in paired] == [c for c in TRAINING_FREE if c != "stand_in_place"]
+    stand = {r.episode_id: r.final("si_sdr") for r in results if r.controller == "stand_in_place"}
+    rotate = [r.final("si_sdr") - stand[r.episode_id] for r in results if r.controller == "rotate_in_place"]
+    assert paired[0]["difference"] == pytest.approx(np.mean(rotate)) and paired[0]["episodes"] == 2
+    assert f"| rotate_in_place | near_target | unheard | 2 | {np.mean(rotate):+.2f} ±" in table
     assert table.splitlines()[2] == "Command: `python scripts/evaluate.py --count 2`"
     assert all(f"| {name} | near_target | unheard | 2 |" in table for name in TRAINING_FREE)
     summary = json.loads(paths["json"].read_text())["summary"]
