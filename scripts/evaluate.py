@@ -17,6 +17,7 @@ far-target), each controller's final-step SI-SDR minus ``--reference``'s on the 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import shlex
 import sys
@@ -33,6 +34,7 @@ from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differences, paired_table,  # noqa: E402
                                   summarize, write_results)
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
+from m2h_ros.core.world import acoustics  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
@@ -134,8 +136,12 @@ def main(argv: list[str] | None = None) -> int:
                 "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
                 "load_average": [round(x, 2) for x in os.getloadavg()]}
         reference = args.reference if args.reference in controllers else None
+        meta["separator_sha256"] = hashlib.sha256(Path(loaded.path).read_bytes()).hexdigest()[:12]
+        meta["acoustics"] = f"v{acoustics.VERSION} {env_config.acoustics.digest()}"
+        setup = (f"separator `{Path(loaded.path).name}` (sha256 {meta['separator_sha256']}), "
+                 f"acoustics {meta['acoustics']}")
         paths = write_results(results, args.out, title=f"{args.task} test episodes, {' + '.join(splits)} sounds",
-                              meta=meta, command=command, reference=reference)
+                              meta=meta, command=command, setup=setup, reference=reference)
     except M2HError as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)
         return 2

@@ -189,10 +189,11 @@ def markdown_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> s
 
 def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, title: str = "Results",
                   meta: dict | None = None, plot: bool = True, command: str | None = None,
-                  reference: str | None = None) -> dict[str, Path]:
+                  setup: str | None = None, reference: str | None = None) -> dict[str, Path]:
     """Write results.md, results.csv (one row per episode), results.json (episodes + summary + meta)
     and si_sdr_vs_step.png into ``out_dir``; returns the paths by kind. ``command``, the one line that
-    reproduces the results, heads the Markdown table; with ``reference`` (a controller's name), the
+    reproduces the results, heads the Markdown table, with ``setup`` (the models and data it ran on,
+    which the command alone does not pin); with ``reference`` (a controller's name), the
     Markdown also has every other controller's paired SI-SDR (GT phase) difference to it."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -201,7 +202,7 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
     note = ("Final-step scores, mean ± 95% CI over episodes. SI-SDR (GT phase): the estimate rebuilt "
             "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
             "(mixture phase): rebuilt with the mixture's phase (deployable).\n")
-    how = f"Command: `{command}`\n\n" if command else ""
+    how = (f"Command: `{command}`\n\n" if command else "") + (f"Setup: {setup}\n\n" if setup else "")
     paired = paired_differences(results, reference=reference) if reference else []
     versus = (f"\nFinal-step SI-SDR (dB, GT phase) minus {reference}'s on the same episodes:\n\n"
               f"{paired_table(paired)}") if paired else ""
