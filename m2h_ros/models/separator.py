@@ -124,7 +124,11 @@ class Separator(nn.Module):
     @staticmethod
     def _with_class_plane(features: torch.Tensor, class_index: torch.Tensor) -> torch.Tensor:
         value = class_index.to(features.dtype).reshape(-1, 1, 1, 1) + 1.0
-        return torch.cat((features, value.expand(features.shape[0], 1, *features.shape[2:])), dim=1)
+        # The plane takes the features' memory layout (e.g. channels_last), so cat keeps it and the
+        # convolutions get the layout they run fastest in, without a conversion.
+        plane = torch.empty_like(features[:, :1])
+        plane.copy_(value.expand_as(plane))
+        return torch.cat((features, plane), dim=1)
 
     def separate_binaural(self, mixture: torch.Tensor, class_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """f^B: mixture magnitude (B, 2S, H, W) -> (mask, separated binaural magnitude)."""
@@ -139,7 +143,10 @@ class Separator(nn.Module):
         """f^M: separated binaural magnitude (B, 2S, H, W) -> monaural magnitude (B, S, H, W), as a
         predicted gain times the ear average (channel-major layout: ears are the leading S-blocks)."""
         score = self.monaural_predictor(self._with_class_plane(torch.log1p(binaural), class_index))
-        ear_mean = binaural.reshape(binaural.shape[0], N_EARS, -1, *binaural.shape[2:]).mean(dim=1)
+        # (left + right) * 0.5 is bit-identical to a mean over the ears and, unlike a reduction over a
+        # reshaped channel axis, costs no copy in channels_last.
+        monos = self.config.monaural_channels
+        ear_mean = (binaural[:, :monos] + binaural[:, monos:]) * 0.5
         return F.softplus(score) * _INV_LN2 * ear_mean
 
     def refine(self, monaural: torch.Tensor, memory: torch.Tensor | None,
@@ -180,7 +187,11 @@ def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int |
 
     numpy -> torch happens once, on the sliced mixture magnitude (after the core STFT); torch -> numpy
     once, on the refined estimate (before un-slicing and the mixture-phase inverse STFT). The memory
-    stays a tensor on the separator's device. Runs without autograd; call ``separator.eval()`` first.
+    stays a tensor on the separator's device. Runs under ``torch.inference_mode()`` (so the memory is
+    an inference tensor: pass it back here, do not train on it); call ``separator.eval()`` first, or
+    pass ``models.inference.fuse_for_inference(separator)`` for the fast path (same numbers). The
+    network input is channels_last, the layout the fused convolutions compute in; the caller picks
+    the torch thread count (``models.threads.inference_threads``).
     """
     mixture = np.asarray(binaural, dtype=np.float32)
     if mixture.ndim != 3 or mixture.shape[1] != N_EARS:
@@ -191,8 +202,8 @@ def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int |
     sliced = torch.from_numpy(np.ascontiguousarray(to_slices(np.abs(spec), n_slices=config.n_freq_slices)))
     classes = torch.as_tensor(np.broadcast_to(np.asarray(class_index), (mixture.shape[0],)).copy(), device=device)
     reset_t = None if reset is None else torch.as_tensor(np.asarray(reset, dtype=bool), device=device)
-    with torch.no_grad():
-        step = separator(sliced.to(device), classes, memory, reset_t)
+    with torch.inference_mode():
+        step = separator(sliced.to(device).contiguous(memory_format=torch.channels_last), classes, memory, reset_t)
     refined = step.refined.cpu().numpy()
     magnitude = from_slices(refined, n_slices=config.n_freq_slices)[:, 0]  # (B, F, T)
     waveform = rebuild_with_phase(magnitude, spec.mean(axis=1), config=config, length=mixture.shape[-1])

@@ -19,6 +19,7 @@ Layouts (all functions are batched over leading dimensions):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from typing import Any, TypeVar
 
 import numpy as np
@@ -109,6 +110,14 @@ class StftConfig:
 DEFAULT_STFT = StftConfig()
 
 
+@lru_cache(maxsize=16)
+def _cached_window(config: StftConfig, dtype: np.dtype) -> np.ndarray:
+    """Read-only ``config.window()`` in ``dtype``: building it costs more than a 1 s clip's FFTs."""
+    window = config.window().astype(dtype)
+    window.flags.writeable = False
+    return window
+
+
 def _check_finite(x: np.ndarray, what: str) -> None:
     if not np.all(np.isfinite(x)):
         raise AudioError(f"{what} holds NaN or infinite values")
@@ -128,7 +137,7 @@ def stft(waveform: np.ndarray, *, config: StftConfig = DEFAULT_STFT) -> np.ndarr
     if x.shape[-1] < config.n_fft:
         raise AudioError(f"stft needs at least n_fft={config.n_fft} samples after padding, got {x.shape[-1]}")
     frames = np.lib.stride_tricks.sliding_window_view(x, config.n_fft, axis=-1)[..., :: config.hop_length, :]
-    spec = scipy.fft.rfft(frames * config.window().astype(x.dtype), axis=-1)
+    spec = scipy.fft.rfft(frames * _cached_window(config, x.dtype), axis=-1)
     return np.swapaxes(spec, -1, -2)
 
 
@@ -144,7 +153,7 @@ def istft(spec: np.ndarray, *, config: StftConfig = DEFAULT_STFT, length: int | 
         raise AudioError(f"istft expects (..., {config.n_freq}, T) spectrograms, got shape {spec.shape}")
     _check_finite(spec, "istft input")
     real_dtype = np.float32 if spec.dtype == np.complex64 else np.float64
-    window = config.window().astype(real_dtype)
+    window = _cached_window(config, np.dtype(real_dtype))
     n_frames, hop, n_fft = spec.shape[-1], config.hop_length, config.n_fft
     frames = scipy.fft.irfft(np.swapaxes(spec, -1, -2), n=n_fft, axis=-1) * window  # (..., T, n_fft)
     # Overlap-add chunk by chunk: each frame is cut into ceil(n_fft / hop) hop-long pieces, and piece
@@ -219,8 +228,11 @@ def rebuild_with_phase(magnitude: np.ndarray, phase_spec: np.ndarray, *, config:
     magnitude = np.asarray(magnitude)
     if magnitude.shape != np.shape(phase_spec):
         raise AudioError(f"magnitude shape {magnitude.shape} differs from phase shape {np.shape(phase_spec)}")
-    unit = np.exp(1j * np.angle(phase_spec)).astype(np.complex64 if magnitude.dtype == np.float32 else np.complex128)
-    spec = magnitude * unit
+    phase_spec = np.asarray(phase_spec)
+    # X / |X| is exp(1j * angle(X)) without the trigonometry (several times faster); angle(0) = 0 -> 1.
+    size = np.abs(phase_spec)
+    unit = np.where(size > 0, phase_spec / np.where(size > 0, size, 1), 1)
+    spec = magnitude * unit.astype(np.complex64 if magnitude.dtype == np.float32 else np.complex128)
     return istft(spec, config=config, length=length)
 
 
