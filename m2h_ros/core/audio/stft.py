@@ -118,6 +118,18 @@ def _cached_window(config: StftConfig, dtype: np.dtype) -> np.ndarray:
     return window
 
 
+@lru_cache(maxsize=16)
+def _ola_envelope(config: StftConfig, n_frames: int, dtype: np.dtype) -> np.ndarray:
+    """Read-only overlap-added square of the ``dtype`` window, in float64, ``n_frames`` frames, untrimmed."""
+    window_sq = _cached_window(config, dtype).astype(np.float64) ** 2
+    hop, n_fft = config.hop_length, config.n_fft
+    envelope = np.zeros(n_fft + hop * (n_frames - 1))
+    for t in range(n_frames):
+        envelope[t * hop : t * hop + n_fft] += window_sq
+    envelope.flags.writeable = False
+    return envelope
+
+
 def _check_finite(x: np.ndarray, what: str) -> None:
     if not np.all(np.isfinite(x)):
         raise AudioError(f"{what} holds NaN or infinite values")
@@ -156,25 +168,20 @@ def istft(spec: np.ndarray, *, config: StftConfig = DEFAULT_STFT, length: int | 
     window = _cached_window(config, np.dtype(real_dtype))
     n_frames, hop, n_fft = spec.shape[-1], config.hop_length, config.n_fft
     frames = scipy.fft.irfft(np.swapaxes(spec, -1, -2), n=n_fft, axis=-1) * window  # (..., T, n_fft)
-    # Overlap-add chunk by chunk: each frame is cut into ceil(n_fft / hop) hop-long pieces, and piece
-    # j of frame t lands at (t + j) * hop, so one vectorised add per piece index does the whole job.
+    # Overlap-add chunk by chunk: each frame is cut into ceil(n_fft / hop) hop-long pieces (the last
+    # one shorter), and piece j of frame t lands at (t + j) * hop, so one vectorised add per piece
+    # index does the whole job.
     n_chunks = -(-n_fft // hop)
-    chunked = np.pad(frames, [(0, 0)] * (frames.ndim - 1) + [(0, n_chunks * hop - n_fft)])
-    chunked = chunked.reshape(*frames.shape[:-1], n_chunks, hop)
-    total = (n_frames + n_chunks - 1) * hop
     out = np.zeros((*frames.shape[:-2], n_frames + n_chunks - 1, hop), dtype=real_dtype)
-    envelope = np.zeros((n_frames + n_chunks - 1, hop), dtype=np.float64)
-    window_chunks = np.pad(window.astype(np.float64) ** 2, (0, n_chunks * hop - n_fft)).reshape(n_chunks, hop)
     for j in range(n_chunks):
-        out[..., j : j + n_frames, :] += chunked[..., j, :]
-        envelope[j : j + n_frames] += window_chunks[j]
-    out = out.reshape(*out.shape[:-2], total)[..., : n_fft + hop * (n_frames - 1)]
-    envelope = envelope.reshape(total)[: n_fft + hop * (n_frames - 1)]
+        width = min(hop, n_fft - j * hop)
+        out[..., j : j + n_frames, :width] += frames[..., j * hop : j * hop + width]
+    out = out.reshape(*out.shape[:-2], -1)[..., : n_fft + hop * (n_frames - 1)]
     start = n_fft // 2 if config.center else 0
     stop = out.shape[-1] - (n_fft // 2 if config.center else 0)
     if length is not None:
         stop = start + length
-    out, envelope = out[..., start:stop], envelope[start:stop]
+    out, envelope = out[..., start:stop], _ola_envelope(config, n_frames, np.dtype(real_dtype))[start:stop]
     if np.any(envelope < 1e-11):
         raise AudioError("istft window overlap-add envelope has zeros (settings break NOLA)")
     out = (out / envelope).astype(real_dtype)
