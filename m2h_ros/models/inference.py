@@ -78,6 +78,10 @@ class FusedConv(nn.Module):
         # input's spatial size, not on the batch (checked: a weight packed for batch 1 serves batch 32).
         self._packed: dict[tuple[int, ...], torch.Tensor] = {}
 
+    def __getstate__(self) -> dict:
+        # oneDNN's packed weights can be neither copied nor pickled; a copy packs again on first use.
+        return {**self.__dict__, "_packed": {}}
+
     def _pack(self, x: torch.Tensor) -> torch.Tensor:
         key = tuple(x.shape[1:])
         packed = self._packed.get(key)
@@ -113,7 +117,8 @@ class FusedConv(nn.Module):
         return f"{kind} {tuple(self.weight.shape)}, stride={self.stride}, padding={self.padding}, {self.activation}"
 
 
-def _fuse_sequential(block: nn.Sequential) -> nn.Sequential:
+def _fuse_sequential(block: nn.Sequential) -> nn.Module:
+    """The fused layers of ``block``; a lone layer stands alone (one module call fewer per layer)."""
     layers, fused, i = list(block), [], 0
     while i < len(layers):
         layer = layers[i]
@@ -128,7 +133,7 @@ def _fuse_sequential(block: nn.Sequential) -> nn.Sequential:
         activation = layers[i] if i < len(layers) and isinstance(layers[i], _ACTIVATIONS) else None
         i += activation is not None
         fused.append(FusedConv(layer, norm, activation))
-    return nn.Sequential(*fused)
+    return fused[0] if len(fused) == 1 else nn.Sequential(*fused)
 
 
 def _fuse_children(module: nn.Module) -> nn.Module:

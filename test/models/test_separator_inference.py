@@ -1,6 +1,8 @@
 """The fast inference path (BatchNorm folded, fused activations, prepacked oneDNN weights) computes
 the same f^B / f^M / f^R outputs as the separator as trained, and the thread count by batch size."""
 
+import io
+
 import numpy as np
 import pytest
 import torch
@@ -107,6 +109,20 @@ def test_fused_copy_structure_and_original_untouched() -> None:
     assert all(not p.requires_grad for p in fused.parameters())
     after = reference.state_dict()
     assert before.keys() == after.keys() and all(torch.equal(before[k], after[k]) for k in before)
+
+
+def test_used_fused_copy_can_be_copied_and_pickled(pair) -> None:
+    reference, fused = pair
+    mixture, classes, memory = inputs(1, seed=4, channels_last=True)
+    with torch.inference_mode():
+        fused(mixture, classes, memory)  # packs the weights
+        again = fuse_for_inference(fused)  # a deep copy of a used copy
+        buffer = io.BytesIO()
+        torch.save(fused, buffer)
+        buffer.seek(0)
+        loaded = torch.load(buffer, weights_only=False)
+        for model in (again, loaded):
+            assert_steps_close(reference(mixture, classes, memory), model(mixture, classes, memory))
 
 
 def test_batchnorm_that_follows_no_conv_is_refused() -> None:
