@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, from_slices, rebuild_with_phase, stft, to_slices
+from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, from_slices, rebuild_with_phase, stft
 from m2h_ros.errors import AudioError, ConfigError
 from m2h_ros.models.unet import MemoryRefiner, UNet
 
@@ -180,6 +180,16 @@ class ClipSeparation:
     memory: torch.Tensor  # (B, S, H, W) refined estimate to pass to the next step
 
 
+def _sliced_magnitude(spec: np.ndarray, n_slices: int) -> torch.Tensor:
+    """``to_slices(|spec|)``, (B, C, F, T) -> (B, C * n_slices, F // n_slices, T), as a channels_last
+    tensor written in one pass (no separate magnitude, slicing copy and layout conversion)."""
+    batch, channels, n_freq, n_frames = spec.shape
+    height = n_freq // n_slices
+    out = np.empty((batch, height, n_frames, channels, n_slices), dtype=np.float32)
+    np.abs(spec.reshape(batch, channels, n_slices, height, n_frames).transpose(0, 3, 4, 1, 2), out=out)
+    return torch.from_numpy(out).reshape(batch, height, n_frames, channels * n_slices).permute(0, 3, 1, 2)
+
+
 def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int | np.ndarray, *,
                   memory: torch.Tensor | None = None, reset: np.ndarray | None = None,
                   config: StftConfig = DEFAULT_STFT) -> ClipSeparation:
@@ -199,12 +209,13 @@ def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int |
     separator.config.check_stft(config)
     spec = stft(mixture, config=config)  # (B, 2, F, T) complex64
     device = next(separator.parameters()).device
-    sliced = torch.from_numpy(np.ascontiguousarray(to_slices(np.abs(spec), n_slices=config.n_freq_slices)))
+    sliced = _sliced_magnitude(spec, config.n_freq_slices)
     classes = torch.as_tensor(np.broadcast_to(np.asarray(class_index), (mixture.shape[0],)).copy(), device=device)
     reset_t = None if reset is None else torch.as_tensor(np.asarray(reset, dtype=bool), device=device)
     with torch.inference_mode():
-        step = separator(sliced.to(device).contiguous(memory_format=torch.channels_last), classes, memory, reset_t)
+        step = separator(sliced.to(device), classes, memory, reset_t)
     refined = step.refined.cpu().numpy()
     magnitude = from_slices(refined, n_slices=config.n_freq_slices)[:, 0]  # (B, F, T)
-    waveform = rebuild_with_phase(magnitude, spec.mean(axis=1), config=config, length=mixture.shape[-1])
+    ear_mean = (spec[:, 0] + spec[:, 1]) * 0.5  # = spec.mean(axis=1) bit for bit, without the slow complex reduction
+    waveform = rebuild_with_phase(magnitude, ear_mean, config=config, length=mixture.shape[-1])
     return ClipSeparation(magnitude, waveform, step.refined)

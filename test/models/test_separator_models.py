@@ -19,6 +19,7 @@ from m2h_ros.models.separator import (
     ClipSeparation,
     Separator,
     SeparatorConfig,
+    _sliced_magnitude,
     count_parameters,
     separate_clip,
 )
@@ -154,6 +155,13 @@ def test_gradients_reach_all_three_networks() -> None:
 def test_parameter_counts_differ_by_preset() -> None:
     compact, paper = (count_parameters(Separator(SeparatorConfig.preset(name))) for name in ("compact", "paper"))
     assert compact < 1_500_000 < 30_000_000 < paper
+
+
+def test_separate_clip_network_input_is_the_sliced_magnitude() -> None:
+    spec = stft(np.random.default_rng(6).standard_normal((3, 2, 16000)).astype(np.float32))
+    sliced = _sliced_magnitude(spec, DEFAULT_STFT.n_freq_slices)
+    assert sliced.is_contiguous(memory_format=torch.channels_last)
+    assert np.array_equal(sliced.numpy(), to_slices(np.abs(spec)))
 
 
 def test_separate_clip_from_waveform(separator: Separator) -> None:

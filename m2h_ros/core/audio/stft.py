@@ -236,11 +236,14 @@ def rebuild_with_phase(magnitude: np.ndarray, phase_spec: np.ndarray, *, config:
     if magnitude.shape != np.shape(phase_spec):
         raise AudioError(f"magnitude shape {magnitude.shape} differs from phase shape {np.shape(phase_spec)}")
     phase_spec = np.asarray(phase_spec)
-    # X / |X| is exp(1j * angle(X)) without the trigonometry (several times faster); angle(0) = 0 -> 1.
+    # magnitude * exp(1j * angle(X)) = X * (magnitude / |X|): no trigonometry and a real division
+    # instead of a complex one (several times faster); angle(0) = 0, so a silent bin gets phase 1.
     size = np.abs(phase_spec)
-    unit = np.where(size > 0, phase_spec / np.where(size > 0, size, 1), 1)
-    spec = magnitude * unit.astype(np.complex64 if magnitude.dtype == np.float32 else np.complex128)
-    return istft(spec, config=config, length=length)
+    silent = size == 0
+    spec = phase_spec * (magnitude / np.where(silent, 1, size))
+    np.copyto(spec, magnitude, where=silent)
+    return istft(spec.astype(np.complex64 if magnitude.dtype == np.float32 else np.complex128, copy=False),
+                 config=config, length=length)
 
 
 def rebuild_ground_truth_phase(magnitude: np.ndarray, target_monaural: np.ndarray, *,
