@@ -27,3 +27,7 @@ class BagError(M2HError):
 
 class EpisodeError(M2HError):
     """An episode file or episode specification is invalid."""
+
+
+class PipelineError(M2HError):
+    """The node graph broke its step contract: a node stopped answering, or sent unusable data."""

@@ -2,13 +2,16 @@
 
 from dataclasses import dataclass
 
+from m2h_ros.agents.registry import CONTROLLER_NAMES
 from m2h_ros.config import Config, setting
+from m2h_ros.errors import ConfigError
 
 TASKS = ("near_target", "far_target")
 SOUND_SPLITS = ("heard", "unheard")
 SCENE_SPLITS = ("train", "val", "test")
-CONTROLLERS = ("move2hear", "stand_in_place", "rotate_in_place", "random", "doa", "proximity_prior",
-               "novelty", "av_navigator", "move_forward")
+SIM_MODES = ("lockstep", "free_running")
+TARGET_CLASSES = ("", "speech", "music")
+PIPELINE_NODES = ("separator_node", "controller_node", "evaluator_node", "recorder_node")
 
 
 @dataclass(frozen=True)
@@ -19,32 +22,61 @@ class SimConfig(Config):
     scene_split: str = setting("test", "scenes the episodes are drawn from", choices=SCENE_SPLITS)
     num_episodes: int = setting(5, "episodes to run before the node exits", min=1, max=100000)
     first_episode: int = setting(0, "index of the first episode in the episode file", min=0)
-    step_timeout_s: float = setting(30.0, "seconds to wait for the controller's action before "
-                                    "aborting the run with an error", min=0.1, max=3600.0)
+    mode: str = setting("lockstep", "lockstep: each step waits for the controller's action; "
+                        "free_running: steps at rate_hz, a missing action holds the robot (counted)",
+                        choices=SIM_MODES)
+    rate_hz: float = setting(1.0, "steps per second in free_running mode (1 s audio frames: 1 Hz is "
+                             "real time)", min=0.01, max=1000.0)
+    step_timeout_s: float = setting(30.0, "lockstep: seconds to wait for a step's answer before "
+                                    "aborting the run, naming the node that did not answer",
+                                    min=0.1, max=3600.0)
+    startup_timeout_s: float = setting(60.0, "seconds to wait for expect_nodes to subscribe",
+                                       min=0.1, max=3600.0)
+    expect_nodes: tuple[str, ...] = setting(("separator_node", "controller_node"),
+                                            "nodes that must be subscribed before step 0 (of: "
+                                            + ", ".join(PIPELINE_NODES) + "); with evaluator_node "
+                                            "each episode waits for its score")
     mic_noise: float = setting(0.0, "std of white noise added to each ear, relative to the "
                                "mixture's RMS", min=0.0, max=10.0)
+    sound_library: str = setting("", "sounds: empty = the built-in library, small = its test-size "
+                                 "variant, or a folder <category>/<class>/<heard|unheard>/*.wav")
+    scene_preset: str = setting("default", "procedural scene family", choices=("default", "small"))
+    min_source_distance: float = setting(8.0, "minimum geodesic metres between sources (8 m as the "
+                                         "original; small scenes need about 3)", min=0.0, max=100.0)
+    acoustics: str = setting("default", "acoustics preset; fast = short RIRs without a late tail, "
+                             "for tests and quick looks only", choices=("default", "fast"))
+    camera: bool = setting(True, "render and publish RGB-D images")
     camera_size: int = setting(128, "width and height of the RGB and depth images", min=16, max=1024)
-    seed: int = setting(0, "seed of the microphone noise", min=0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        unknown = sorted(set(self.expect_nodes) - set(PIPELINE_NODES))
+        if unknown:
+            raise ConfigError(f"SimConfig.expect_nodes = {list(self.expect_nodes)}: unknown node(s) "
+                              f"{unknown}; known: {', '.join(PIPELINE_NODES)}")
 
 
 @dataclass(frozen=True)
 class SeparatorNodeConfig(Config):
     checkpoint: str = setting("", "separator checkpoint (.pt); empty: the shipped compact default")
-    publish_intermediate: bool = setting(True, "also publish f^B and f^M outputs, not just f^R's")
+    target_class: str = setting("", "target class; empty: from each episode's EpisodeInfo (set it "
+                                "for a live microphone with no simulator)", choices=TARGET_CLASSES)
+    torch_threads: int = setting(1, "torch threads; at batch 1 one thread is fastest on 2 cores "
+                                 "(about 8 ms vs 21 ms per step with 2, scripts/bench/separator.py)",
+                                 min=1, max=64)
 
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
-    policy: str = setting("random", "which controller chooses the actions", choices=CONTROLLERS)
+    policy: str = setting("stand_in_place", "which controller chooses the actions", choices=CONTROLLER_NAMES)
     checkpoint: str = setting("", "policy checkpoint for learned controllers; empty: shipped default")
-    seed: int = setting(0, "seed of stochastic controllers", min=0)
+    seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
 
 
 @dataclass(frozen=True)
 class EvaluatorConfig(Config):
-    scores_file: str = setting("", "JSON file the per-episode scores are written to; empty: none")
-
-
+    output_dir: str = setting("", "directory for results.md/.csv/.json and the SI-SDR plot, "
+                              "rewritten after every episode; empty: none")
 @dataclass(frozen=True)
 class RecorderConfig(Config):
     output: str = setting("", "bag directory to create; empty: runs/<date-time> under the current "

@@ -1,19 +1,146 @@
-"""evaluator_node: the evaluator: scores each step's estimate against the ground truth (SI-SDR, STFT distance, SR, SPL).
+"""evaluator_node: scores every step's refined estimate against the ground truth (the only node that
+subscribes to /ground_truth) and every finished episode; publishes StepScore / EpisodeScore and keeps
+the results table (Markdown + CSV + JSON, and the SI-SDR-vs-step plot at shutdown) in output_dir.
 
-Its step logic lands with the pipeline issue; today it declares and validates its parameters."""
+Scores come from m2h_ros.core.audio.scoring and m2h_ros.core.results, the same code in-process
+evaluation and offline replay use: SI-SDR with the ground-truth phase (the paper's figure) and with
+the mixture's phase (deployable), STFT distance, and SR / SPL for far-target episodes."""
 
+from __future__ import annotations
+
+from pathlib import Path
+
+from m2h_msgs.msg import (BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, Spectrogram,
+                          StepScore)
+from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
+from m2h_ros import topics
+from m2h_ros.core.audio.scoring import score_magnitude
+from m2h_ros.core.audio.stft import DEFAULT_STFT
+from m2h_ros.core.results import EpisodeResult, EpisodeTracker, write_results
+from m2h_ros.core.world.episodes import STOP
 from m2h_ros.node_configs import EvaluatorConfig
+from m2h_ros.ros import convert
 from m2h_ros.ros.params import declare_config
+from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
 from m2h_ros.ros.spin import run_node
+from m2h_ros.ros.sync import StepAssembler
+
+N, F, T = DEFAULT_STFT.clip_samples, DEFAULT_STFT.n_freq, DEFAULT_STFT.n_frames
 
 
 class EvaluatorNode(Node):
     def __init__(self):
         super().__init__("evaluator_node")
         self.config: EvaluatorConfig = declare_config(self, EvaluatorConfig)
-        self.get_logger().info(f"ready: {self.config}")
+        self.assembler = StepAssembler({"truth", "refined", "audio", "odom"}, self.on_step)
+        self.pub_step = self.create_publisher(StepScore, topics.STEP_SCORE, STEP,
+                                              event_callbacks=publisher_events(self.get_logger(), topics.STEP_SCORE))
+        self.pub_episode = self.create_publisher(EpisodeScore, topics.EPISODE_SCORE, STEP,
+                                                 event_callbacks=publisher_events(self.get_logger(),
+                                                                                  topics.EPISODE_SCORE))
+
+        def subscribe(kind, topic, callback, qos=STEP):
+            self.create_subscription(kind, topic, callback, qos,
+                                     event_callbacks=subscription_events(self.get_logger(), topic))
+
+        subscribe(EpisodeInfo, topics.EPISODE, self.on_episode, LATCHED)
+        subscribe(GroundTruth, topics.GROUND_TRUTH, lambda m: self.assembler.add(
+            (m.episode_id, m.step), "truth", m))
+        subscribe(Spectrogram, topics.REFINED, lambda m: self.assembler.add(
+            (m.episode_id, m.step), "refined", convert.spectrogram_from_msg(m, kind=Spectrogram.REFINED, shape=(F, T))))
+        subscribe(BinauralAudio, topics.AUDIO, self.on_audio)
+        subscribe(Odometry, topics.ODOM, lambda m: self.assembler.add_stamped(
+            convert.nanoseconds_of(m.header.stamp), "odom", convert.pose_from_odometry(m)))
+        subscribe(MotionCommand, topics.COMMAND, self.on_command)
+        self.episodes: dict[str, EpisodeInfo] = {}
+        self.parked: list[tuple[tuple[str, int], dict]] = []
+        self.trackers: dict[str, EpisodeTracker] = {}
+        self.controllers: dict[str, str] = {}
+        self.commands: dict[str, dict[int, int]] = {}  # episode -> step -> action not yet applied
+        self.results: list[EpisodeResult] = []
+        self.output = Path(self.config.output_dir) if self.config.output_dir else None
+        self.get_logger().info(f"ready: results to {self.output or '(nowhere: output_dir is empty)'}")
+
+    def on_episode(self, msg: EpisodeInfo) -> None:
+        self.episodes[msg.episode_id] = msg
+        parked, self.parked = self.parked, []
+        for key, parts in parked:
+            self.on_step(key, parts)
+
+    def on_audio(self, msg: BinauralAudio) -> None:
+        key = (msg.episode_id, msg.step)
+        self.assembler.add(key, "audio", convert.audio_from_msg(msg, sample_rate=DEFAULT_STFT.sample_rate, samples=N))
+        self.assembler.bind(convert.nanoseconds_of(msg.header.stamp), key)
+
+    def on_command(self, msg: MotionCommand) -> None:
+        self.controllers[msg.episode_id] = msg.controller
+        self.commands.setdefault(msg.episode_id, {})[msg.step] = msg.action
+        self.apply_commands(msg.episode_id)
+
+    def apply_commands(self, episode_id: str) -> None:
+        """Commands can arrive before their episode's first step is scored: apply them in order."""
+        tracker = self.trackers.get(episode_id)
+        if tracker is None:
+            return
+        pending = self.commands.get(episode_id, {})
+        while len(tracker.result.actions) in pending:
+            step = len(tracker.result.actions)
+            tracker.act(step, pending.pop(step))
+        self.finish_if_done(episode_id)
+
+    def on_step(self, key: tuple[str, int], parts: dict) -> None:
+        episode_id, step = key
+        info = self.episodes.get(episode_id)
+        if info is None:  # topics are not ordered: the step waits for its episode's info
+            self.parked.append((key, parts))
+            return
+        truth_msg = parts["truth"]
+        truth = convert.truth_from_msg(truth_msg, samples=N)
+        scores = score_magnitude(parts["refined"][None], parts["audio"][None], truth, config=DEFAULT_STFT)
+        values = dict(si_sdr=float(scores.si_sdr[0]), si_sdr_mixture_phase=float(scores.si_sdr_mixture_phase[0]),
+                      stft_distance=float(scores.stft_distance[0]))
+        stamp = self.get_clock().now().nanoseconds
+        self.pub_step.publish(convert.step_score_msg(**values, geodesic_distance=truth_msg.geodesic_distance,
+                                                     episode_id=episode_id, step=step, stamp_ns=stamp))
+        if step == 0:
+            result = EpisodeResult(episode_id=episode_id, controller=self.controllers.get(episode_id, ""),
+                                   task=info.task, sound_split=info.split, scene_id=info.scene_id,
+                                   target_class=info.target_class, shortest_path=truth_msg.geodesic_distance)
+            self.trackers[episode_id] = EpisodeTracker(result, parts["odom"])
+        tracker = self.trackers.get(episode_id)
+        if tracker is None:
+            self.get_logger().warning(f"{episode_id} step {step}: its step 0 was never seen; not scored")
+            return
+        tracker.observe(step, **values, position=parts["odom"], at_target=truth_msg.at_target)
+        self.apply_commands(episode_id)
+
+    def finish_if_done(self, episode_id: str) -> None:
+        """An episode ends at observation max_steps, or at the one after a far-target Stop."""
+        tracker, info = self.trackers[episode_id], self.episodes[episode_id]
+        r = tracker.result
+        observed = len(r.si_sdr)
+        stopped = info.task == "far_target" and r.actions and r.actions[-1] == STOP
+        if observed != len(r.actions) + 1 or not (observed == info.max_steps + 1 or stopped):
+            return
+        r.controller = self.controllers.get(episode_id, r.controller)
+        result = tracker.finish()
+        del self.trackers[episode_id]
+        self.commands.pop(episode_id, None)
+        self.results.append(result)
+        self.pub_episode.publish(convert.episode_score_msg(result, stamp_ns=self.get_clock().now().nanoseconds))
+        self.get_logger().info(f"{episode_id}: SI-SDR {result.final('si_sdr'):.2f} dB (GT phase), "
+                               f"{result.final('si_sdr_mixture_phase'):.2f} dB (mixture phase) after "
+                               f"{result.steps} steps")
+        if self.output is not None:
+            write_results(self.results, self.output, title="m2h_ros pipeline run", plot=False)
+
+    def destroy_node(self) -> None:
+        if self.output is not None and self.results:
+            paths = write_results(self.results, self.output, title="m2h_ros pipeline run")
+            print(f"evaluator: {len(self.results)} episodes scored -> {paths['markdown']}", flush=True)
+        super().destroy_node()
 
 
 def main(args=None):

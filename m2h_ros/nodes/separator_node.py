@@ -1,19 +1,89 @@
-"""separator_node: the separator: turns each step's binaural audio into the target's separated spectrograms (f^B, f^M, f^R).
+"""separator_node: f^B -> f^M -> f^R on each step's binaural audio; publishes the separated binaural,
+monaural and refined spectrograms and the refined estimate as audio (mixture phase) to listen to.
 
-Its step logic lands with the pipeline issue; today it declares and validates its parameters."""
+The refiner's memory restarts whenever the episode id changes. The target class comes from the
+episode's EpisodeInfo (a frame waits until its episode's info arrives) or, for a live microphone
+with no simulator (scripts/play_binaural.py or a real driver), from the target_class parameter.
+Unusable audio (wrong rate, channel count or length, NaN) ends the node with an error naming it."""
 
-from rclpy.node import Node
+from __future__ import annotations
 
-from m2h_ros.node_configs import SeparatorNodeConfig
-from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.spin import run_node
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: idle threads must not spin
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from m2h_msgs.msg import BinauralAudio, EpisodeInfo, Spectrogram  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+
+from m2h_ros import topics  # noqa: E402
+from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
+from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
+from m2h_ros.node_configs import SeparatorNodeConfig  # noqa: E402
+from m2h_ros.ros import convert  # noqa: E402
+from m2h_ros.ros.params import declare_config  # noqa: E402
+from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events  # noqa: E402
+from m2h_ros.ros.spin import run_node  # noqa: E402
+
+MAX_WAITING_FRAMES = 32  # frames kept while their episode's info has not arrived
 
 
 class SeparatorNode(Node):
     def __init__(self):
         super().__init__("separator_node")
         self.config: SeparatorNodeConfig = declare_config(self, SeparatorNodeConfig)
-        self.get_logger().info(f"ready: {self.config}")
+        torch.set_num_threads(self.config.torch_threads)
+        loaded = load_separator(self.config.checkpoint or DEFAULT_SEPARATOR_CHECKPOINT)
+        self.runner = SeparatorRunner(loaded, 1)
+        self.stft = loaded.stft
+        if self.config.target_class:
+            loaded.class_index(self.config.target_class)  # an unknown class fails now, not per frame
+
+        def publisher(kind, topic):
+            return self.create_publisher(kind, topic, STEP, event_callbacks=publisher_events(self.get_logger(), topic))
+
+        self.pub_binaural = publisher(Spectrogram, topics.SEPARATED_BINAURAL)
+        self.pub_monaural = publisher(Spectrogram, topics.MONAURAL)
+        self.pub_refined = publisher(Spectrogram, topics.REFINED)
+        self.pub_audio = publisher(BinauralAudio, topics.SEPARATED_AUDIO)
+        self.create_subscription(EpisodeInfo, topics.EPISODE, self.on_episode, LATCHED,
+                                 event_callbacks=subscription_events(self.get_logger(), topics.EPISODE))
+        self.create_subscription(BinauralAudio, topics.AUDIO, self.on_audio, STEP,
+                                 event_callbacks=subscription_events(self.get_logger(), topics.AUDIO))
+        self.classes: dict[str, str] = {}  # episode id -> target class
+        self.waiting: list[BinauralAudio] = []
+        self.episode_id: str | None = None
+        self.steps = 0
+        self.get_logger().info(f"ready: separator {loaded.path.name} ({loaded.config.unet_channels}), "
+                               f"{self.config.torch_threads} torch thread(s)")
+
+    def on_episode(self, msg: EpisodeInfo) -> None:
+        self.classes[msg.episode_id] = msg.target_class
+        waiting, self.waiting = self.waiting, []
+        for frame in waiting:
+            self.on_audio(frame)
+
+    def on_audio(self, msg: BinauralAudio) -> None:
+        target = self.config.target_class or self.classes.get(msg.episode_id)
+        if target is None:
+            self.waiting = [*self.waiting, msg][-MAX_WAITING_FRAMES:]
+            return
+        mixture = convert.audio_from_msg(msg, sample_rate=self.stft.sample_rate, samples=self.stft.clip_samples)
+        reset = msg.episode_id != self.episode_id
+        self.episode_id = msg.episode_id
+        out = self.runner.step(mixture[None], self.runner.class_indices([target]), np.array([reset]))
+        stamp = convert.nanoseconds_of(msg.header.stamp)
+        tag = dict(episode_id=msg.episode_id, step=msg.step, stamp_ns=stamp)
+        self.pub_binaural.publish(convert.spectrogram_msg(out.binaural[0], kind=Spectrogram.SEPARATED_BINAURAL,
+                                                          layout="CFT", stft=self.stft, **tag))
+        self.pub_monaural.publish(convert.spectrogram_msg(out.monaural[0], kind=Spectrogram.MONAURAL_ESTIMATE,
+                                                          layout="FT", stft=self.stft, **tag))
+        self.pub_refined.publish(convert.spectrogram_msg(out.refined[0], kind=Spectrogram.REFINED, layout="FT",
+                                                         stft=self.stft, **tag))
+        waveform = out.waveform(mixture[None], config=self.stft)
+        self.pub_audio.publish(convert.audio_msg(waveform, sample_rate=self.stft.sample_rate, **tag))
+        self.steps += 1
 
 
 def main(args=None):

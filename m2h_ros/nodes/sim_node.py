@@ -1,19 +1,205 @@
-"""sim_node: the simulator: publishes each step's binaural audio, camera frame, pose and episode info, applies motion commands.
+"""sim_node: the simulator. Plays episodes on the ROS-free environment (one slot), publishes each
+step's binaural mixture, camera images, odometry, episode info and (for the evaluator only) the
+ground truth, and applies one MotionCommand per step.
 
-Its step logic lands with the pipeline issue; today it declares and validates its parameters."""
+Lockstep (default): step k is published, then the node waits for the controller's command for step
+k (at most step_timeout_s; then it names the node that did not answer and exits non-zero). At an
+episode's last observation it waits for the evaluator's EpisodeScore (when evaluator_node is
+expected) or the separator's output, so nothing is cut off. Free-running: steps at rate_hz; a step
+whose command has not arrived holds the robot in place and is counted as dropped.
+Exits with code 0 after the last episode."""
 
+from __future__ import annotations
+
+import time
+
+from m2h_msgs.msg import AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand
+from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
 
+from m2h_ros import sim_world, topics
+from m2h_ros.core.world.env import N_ACTIONS
+from m2h_ros.core.world.player import EpisodePlayer, PlayerStep
+from m2h_ros.errors import PipelineError
 from m2h_ros.node_configs import SimConfig
+from m2h_ros.ros import convert
+from m2h_ros.ros.graph import missing_consumers
 from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.spin import run_node
+from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
+from m2h_ros.ros.spin import RunFinished, run_node
+
+TICK_S = 0.05  # how often the node checks start-up and timeouts (answers are handled as they come)
+SETTLE_S = 0.5  # after every consumer is seen, let the endpoints match before step 0
 
 
 class SimNode(Node):
     def __init__(self):
         super().__init__("sim_node")
         self.config: SimConfig = declare_config(self, SimConfig)
-        self.get_logger().info(f"ready: {self.config}")
+        cfg = self.config
+        library = sim_world.sound_library(cfg.sound_library)
+        env_config = sim_world.env_config(cfg)
+        self.camera_config = env_config.camera_config
+        self.player = EpisodePlayer(sim_world.sim_episodes(cfg, library), library, config=env_config)
+        self.sample_rate = env_config.acoustics.sample_rate
+        self.ear_height = env_config.acoustics.head_height
+        self.indices = list(range(cfg.num_episodes))
+
+        def publisher(kind, topic, qos=STEP):
+            return self.create_publisher(kind, topic, qos, event_callbacks=publisher_events(self.get_logger(), topic))
+
+        self.pub_episode = publisher(EpisodeInfo, topics.EPISODE, LATCHED)
+        self.pub_audio = publisher(BinauralAudio, topics.AUDIO)
+        self.pub_odom = publisher(Odometry, topics.ODOM)
+        self.pub_pose = publisher(AgentPose, topics.AGENT_POSE)
+        self.pub_truth = publisher(GroundTruth, topics.GROUND_TRUTH)
+        if cfg.camera:
+            self.pub_rgb, self.pub_depth = publisher(Image, topics.RGB), publisher(Image, topics.DEPTH)
+            self.pub_info = publisher(CameraInfo, topics.CAMERA_INFO)
+        self.create_subscription(MotionCommand, topics.COMMAND, self.on_command, STEP,
+                                 event_callbacks=subscription_events(self.get_logger(), topics.COMMAND))
+        self.create_subscription(BinauralAudio, topics.SEPARATED_AUDIO, self.on_separated, STEP,
+                                 event_callbacks=subscription_events(self.get_logger(), topics.SEPARATED_AUDIO))
+        self.create_subscription(EpisodeScore, topics.EPISODE_SCORE, self.on_score, STEP,
+                                 event_callbacks=subscription_events(self.get_logger(), topics.EPISODE_SCORE))
+        self.commands: dict[tuple[str, int], int] = {}
+        self.separated: tuple[str, int] = ("", -1)  # the last (episode, step) the separator answered
+        self.scored: set[str] = set()
+        self.current: PlayerStep | None = None
+        self.position = -1  # index into self.indices
+        self.published_at = self.first_published_at = 0.0
+        self.ready_since: float | None = None
+        self.started_at = time.monotonic()
+        self.steps = self.dropped = 0
+        self.timer = self.create_timer(TICK_S, self.tick)
+        self.step_timer = None
+        self.get_logger().info(f"ready: {cfg.num_episodes} {cfg.task} episodes ({cfg.sound_split} sounds, "
+                               f"{cfg.scene_split} scenes) from #{cfg.first_episode}, {cfg.mode}")
+
+    # --------------------------------------------------------------- callbacks
+    def on_command(self, msg: MotionCommand) -> None:
+        if not 0 <= msg.action < N_ACTIONS:
+            raise PipelineError(f"controller {msg.controller!r} sent action {msg.action} for "
+                                f"{msg.episode_id} step {msg.step}; valid actions are 0..{N_ACTIONS - 1}")
+        self.commands[(msg.episode_id, msg.step)] = msg.action
+        self.poll()
+
+    def on_separated(self, msg: BinauralAudio) -> None:
+        self.separated = (msg.episode_id, msg.step)
+        self.poll()
+
+    def on_score(self, msg: EpisodeScore) -> None:
+        self.scored.add(msg.episode_id)
+        self.poll()
+
+    def poll(self) -> None:
+        if self.current is not None and (self.config.mode == "lockstep" or self.current.done):
+            self.lockstep(time.monotonic())
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        if self.current is None:
+            self.wait_for_consumers(now)
+        else:
+            self.poll()
+
+    # --------------------------------------------------------------- phases
+    def wait_for_consumers(self, now: float) -> None:
+        missing = missing_consumers(self, self.config.expect_nodes)
+        if missing:
+            self.ready_since = None
+            if now - self.started_at > self.config.startup_timeout_s:
+                raise PipelineError(f"after {self.config.startup_timeout_s:.0f} s these nodes have not "
+                                    f"subscribed: {'; '.join(missing)}")
+            return
+        if self.ready_since is None:
+            self.ready_since = now
+        elif now - self.ready_since >= SETTLE_S:
+            self.get_logger().info(f"consumers ready ({', '.join(self.config.expect_nodes)}): starting")
+            self.next_episode()
+            if self.config.mode == "free_running":
+                self.step_timer = self.create_timer(1.0 / self.config.rate_hz, self.free_step)
+
+    def lockstep(self, now: float) -> None:
+        episode_id, step = self.player.episode.episode_id, int(self.current.obs["step"][0])
+        if self.current.done:
+            answered = (episode_id in self.scored if "evaluator_node" in self.config.expect_nodes
+                        else self.separated == (episode_id, step))
+            if answered:
+                self.next_episode()
+            elif now - self.published_at > self.config.step_timeout_s:
+                who = "evaluator_node (no EpisodeScore)" if "evaluator_node" in self.config.expect_nodes \
+                    else "separator_node (no output)"
+                raise PipelineError(f"episode {episode_id} ended at step {step} and {who} came within "
+                                    f"{self.config.step_timeout_s} s{self.absent_nodes()}")
+            return
+        action = self.commands.pop((episode_id, step), None)
+        if action is not None:
+            self.advance(action, hold=False)
+        elif now - self.published_at > self.config.step_timeout_s:
+            culprit = ("controller_node" if self.separated == (episode_id, step) else "separator_node")
+            raise PipelineError(f"no motion command for {episode_id} step {step} within "
+                                f"{self.config.step_timeout_s} s: {culprit} did not answer"
+                                f"{self.absent_nodes()}")
+
+    def free_step(self) -> None:
+        if self.current is None or self.current.done:
+            return
+        key = (self.player.episode.episode_id, int(self.current.obs["step"][0]))
+        action = self.commands.pop(key, None)
+        if action is None:
+            self.dropped += 1
+        self.advance(0 if action is None else action, hold=action is None)
+
+    def absent_nodes(self) -> str:
+        present = set(self.get_node_names())
+        gone = [name for name in self.config.expect_nodes if name not in present]
+        return f" ({', '.join(gone)} no longer in the graph)" if gone else ""
+
+    # --------------------------------------------------------------- stepping
+    def next_episode(self) -> None:
+        self.position += 1
+        if self.position == len(self.indices):
+            elapsed = time.monotonic() - self.first_published_at
+            dropped = f", {self.dropped} dropped (held)" if self.config.mode == "free_running" else ""
+            self.get_logger().info(f"done: {len(self.indices)} episodes, {self.steps} steps in {elapsed:.1f} s "
+                                   f"({self.steps / max(elapsed, 1e-9):.1f} steps/s){dropped}")
+            raise RunFinished()
+        self.current = self.player.start(self.indices[self.position])
+        self.commands = {k: v for k, v in self.commands.items() if k[0] == self.player.episode.episode_id}
+        self.publish(episode_start=True)
+
+    def advance(self, action: int, *, hold: bool) -> None:
+        self.current = self.player.step(action, hold=hold)
+        self.publish(episode_start=False)
+
+    def publish(self, *, episode_start: bool) -> None:
+        obs, info, episode = self.current.obs, self.current.info, self.player.episode
+        stamp = self.get_clock().now().nanoseconds
+        step = int(obs["step"][0])
+        tag = dict(episode_id=episode.episode_id, step=step, stamp_ns=stamp)
+        if episode_start:
+            self.pub_episode.publish(convert.episode_info_msg(episode, stamp_ns=stamp))
+        pose = obs["pose"][0]
+        self.pub_odom.publish(convert.odometry_msg(pose, height=self.ear_height, stamp_ns=stamp))
+        self.pub_pose.publish(convert.agent_pose_msg(pose, node=int(obs["node"][0]), heading=int(obs["heading"][0]),
+                                                     height=self.ear_height, **tag))
+        if self.config.camera:
+            self.pub_rgb.publish(convert.rgb_msg(obs["rgb"][0], stamp_ns=stamp))
+            self.pub_depth.publish(convert.depth_msg(obs["depth"][0, ..., 0], stamp_ns=stamp))
+            self.pub_info.publish(convert.camera_info_msg(self.camera_config, stamp_ns=stamp))
+        self.pub_truth.publish(convert.ground_truth_msg(info, 0, sample_rate=self.sample_rate, **tag))
+        # The mixture last: it is what starts the separator, so everything else of the step is out.
+        self.pub_audio.publish(convert.audio_msg(obs["audio"][0], sample_rate=self.sample_rate, **tag))
+        self.published_at = time.monotonic()
+        if not self.steps:
+            self.first_published_at = self.published_at
+        self.steps += 1
+
+    def destroy_node(self) -> None:
+        self.player.close()
+        super().destroy_node()
 
 
 def main(args=None):

@@ -3,9 +3,11 @@
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-# Step streams run in lockstep: nothing may be dropped, and a few steps of slack are plenty.
-STEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+# Step streams: nothing may be dropped. Keep-all, because a consumer outside the lockstep (the
+# evaluator scores while the next steps run) can fall several steps behind; the lockstep bounds it:
+# the simulator waits for each episode's score before starting the next.
+STEP = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                  durability=DurabilityPolicy.VOLATILE)
 # Episode info is latched so a node that starts late still learns the current episode.
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                      reliability=ReliabilityPolicy.RELIABLE,

@@ -231,8 +231,13 @@ class BatchEnv:
         info["done"] = np.zeros(self.n_envs, bool)
         return obs, info
 
-    def step(self, actions) -> tuple[Observation, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    def step(self, actions, *, hold=None) -> tuple[Observation, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """One action per slot; ``hold`` (B,) bool: slots that stay as they are this step whatever
+        their action (a real-time run whose controller missed the step), which still counts."""
         actions = np.asarray(actions)
+        hold = np.zeros(self.n_envs, bool) if hold is None else np.asarray(hold, bool)
+        if hold.shape != (self.n_envs,):
+            raise ConfigError(f"hold must be {self.n_envs} bools, got shape {hold.shape}")
         if actions.shape != (self.n_envs,) or not np.issubdtype(actions.dtype, np.integer) \
                 or actions.min() < 0 or actions.max() >= N_ACTIONS:
             raise ConfigError(f"actions must be {self.n_envs} ints in [0, {N_ACTIONS}), got {actions!r}")
@@ -242,14 +247,15 @@ class BatchEnv:
         cfg = self.config
         before = self._distance()
         for data, slots in self._groups(np.arange(self.n_envs)):   # rows = slots here
-            moving = slots[actions[slots] == MOVE_FORWARD]
+            moving = slots[(actions[slots] == MOVE_FORWARD) & ~hold[slots]]
             self._node[moving] = data.scene.grid.forward[self._node[moving], self._heading[moving]]
-        self._heading = np.where(actions == TURN_LEFT, (self._heading + 1) % N_HEADINGS,
-                                 np.where(actions == TURN_RIGHT, (self._heading - 1) % N_HEADINGS,
-                                          self._heading))
+        self._heading = np.where(hold, self._heading,
+                                 np.where(actions == TURN_LEFT, (self._heading + 1) % N_HEADINGS,
+                                          np.where(actions == TURN_RIGHT, (self._heading - 1) % N_HEADINGS,
+                                                   self._heading)))
         self._step += 1
         after = self._distance()
-        terminated = (actions == STOP) & self._far
+        terminated = (actions == STOP) & self._far & ~hold
         success = terminated & (self._node == self._target)
         truncated = ~terminated & (self._step >= self._max_steps)
         reward = (cfg.distance_reward * (before - after) - cfg.step_penalty

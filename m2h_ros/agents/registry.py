@@ -1,0 +1,40 @@
+"""Controllers by name: what ``controller_node``'s ``policy`` parameter and ``scripts/evaluate.py``
+accept. Implementations are imported when made, so listing names imports nothing heavy."""
+
+from __future__ import annotations
+
+import importlib
+
+from m2h_ros.agents.base import Controller
+from m2h_ros.errors import ConfigError
+
+# name -> "module:Class" of the training-free baselines (m2h_ros/agents/baselines.py).
+TRAINING_FREE = {
+    "stand_in_place": "m2h_ros.agents.baselines:StandInPlace",
+    "rotate_in_place": "m2h_ros.agents.baselines:RotateInPlace",
+    "random": "m2h_ros.agents.baselines:RandomActions",
+    "move_forward": "m2h_ros.agents.baselines:MoveForward",
+    "doa": "m2h_ros.agents.baselines:DirectionOfArrival",
+    "proximity_prior": "m2h_ros.agents.baselines:ProximityPrior",
+}
+# Learned controllers of the paper; they arrive with the learned-controllers issue.
+LEARNED: dict[str, str] = {}
+CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED)
+
+
+def controller_class(name: str) -> type[Controller]:
+    target = TRAINING_FREE.get(name) or LEARNED.get(name)
+    if target is None:
+        raise ConfigError(f"unknown controller {name!r}; available: {', '.join(CONTROLLER_NAMES)}")
+    module, cls = target.split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str = "") -> Controller:
+    """A controller of ``n_slots`` slots; ``checkpoint`` is for learned controllers only."""
+    cls = controller_class(name)
+    if name in TRAINING_FREE:
+        if checkpoint:
+            raise ConfigError(f"controller {name!r} needs no training; it takes no checkpoint")
+        return cls(n_slots, seed=seed)
+    return cls(n_slots, seed=seed, checkpoint=checkpoint)

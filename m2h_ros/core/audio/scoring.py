@@ -1,0 +1,69 @@
+"""Per-step separation scores: the one definition the evaluator node, ``scripts/evaluate.py``,
+passive evaluation and offline replay scoring all use (batched, numpy).
+
+An estimate is a monaural magnitude (..., F, T). It is rebuilt into a waveform two ways:
+
+* ``si_sdr`` (the paper's reported variant): magnitude + the phase of the clean target, scored
+  against the target's dry monaural clip. Needs the ground truth's phase: comparable with the paper,
+  not something a robot can do.
+* ``si_sdr_mixture_phase`` (deployable): magnitude + the phase of the mixture's ear mean, scored
+  against :data:`DEPLOYABLE_REFERENCE` (see :func:`deployable_reference`).
+
+``stft_distance`` is the Euclidean distance between the complex spectrogram of the ground-truth-phase
+rebuild and the dry target's (the paper's STFT distance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from m2h_ros.core.audio.metrics import delayed, si_sdr, stft_distance
+from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, rebuild_mixture_phase, rebuild_with_phase, stft
+from m2h_ros.errors import AudioError
+
+DEPLOYABLE_REFERENCE = "delay-aligned dry target"
+
+
+@dataclass(frozen=True)
+class StepTruth:
+    """What scoring needs of the ground truth at a step (batched over leading dims)."""
+
+    target_monaural: np.ndarray  # (..., N) the target's dry clip
+    target_binaural: np.ndarray  # (..., 2, N) the target alone as heard
+    target_delay: np.ndarray  # (...,) samples: direct-path delay at the head centre
+
+
+@dataclass(frozen=True)
+class StepScores:
+    si_sdr: np.ndarray  # (...,) dB, ground-truth phase vs the dry target
+    si_sdr_mixture_phase: np.ndarray  # (...,) dB, mixture phase vs the deployable reference
+    stft_distance: np.ndarray  # (...,)
+
+
+def deployable_reference(truth: StepTruth) -> np.ndarray:
+    """The reference of the mixture-phase variant: the dry clip delayed by the direct path."""
+    return delayed(truth.target_monaural, np.rint(np.asarray(truth.target_delay)).astype(np.int64))
+
+
+def score_magnitude(magnitude: np.ndarray, mixture: np.ndarray, truth: StepTruth, *,
+                    config: StftConfig = DEFAULT_STFT) -> StepScores:
+    """Scores of a monaural magnitude estimate (..., F, T) given the binaural mixture (..., 2, N)."""
+    magnitude = np.asarray(magnitude, np.float32)
+    target = np.asarray(truth.target_monaural, np.float32)
+    mixture = np.asarray(mixture, np.float32)
+    if mixture.shape[:-2] != target.shape[:-1] or mixture.shape[-1] != target.shape[-1]:
+        raise AudioError(f"mixture {mixture.shape} does not match target {target.shape}")
+    if not np.all(np.isfinite(magnitude)):
+        raise AudioError("estimate magnitude holds NaN or infinite values")
+    target_spec = stft(target, config=config)
+    if magnitude.shape != target_spec.shape:
+        raise AudioError(f"estimate magnitude {magnitude.shape} does not match the STFT of the "
+                         f"target {target_spec.shape}")
+    gt_phase = rebuild_with_phase(magnitude, target_spec, config=config, length=target.shape[-1])
+    mixture_phase = rebuild_mixture_phase(magnitude, mixture, config=config)
+    return StepScores(
+        si_sdr=np.asarray(si_sdr(gt_phase, target)),
+        si_sdr_mixture_phase=np.asarray(si_sdr(mixture_phase, deployable_reference(truth))),
+        stft_distance=np.asarray(stft_distance(stft(gt_phase, config=config), target_spec)))

@@ -1,0 +1,224 @@
+"""Episode results and the tables and plots made of them: shared by the evaluator node,
+``scripts/evaluate.py`` and offline replay scoring, so every tool reports the same numbers the same way.
+
+An :class:`EpisodeTracker` collects one episode as it runs (per-step scores, actions, positions) and
+finishes into an :class:`EpisodeResult`. :func:`summarize` gives per-group means with 95% confidence
+intervals (Student t over episodes); :func:`write_results` writes Markdown, CSV and JSON tables and the
+SI-SDR-vs-step plot.
+
+Navigation (far-target): success = the episode ended with Stop on the target's node; SPL = success x
+shortest path / max(path length, shortest path) (Anderson et al. 2018), path length = metres moved.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from m2h_ros.core.world.episodes import STOP
+from m2h_ros.errors import ConfigError
+
+METRICS = ("si_sdr", "si_sdr_mixture_phase", "stft_distance")
+METRIC_LABELS = {"si_sdr": "SI-SDR (dB, GT phase)", "si_sdr_mixture_phase": "SI-SDR (dB, mixture phase)",
+                 "stft_distance": "STFT distance"}
+
+
+@dataclass
+class EpisodeResult:
+    episode_id: str
+    controller: str
+    task: str
+    sound_split: str
+    scene_id: str
+    target_class: str
+    actions: list[int] = field(default_factory=list)  # action answering observation k, k = 0..T-1
+    si_sdr: list[float] = field(default_factory=list)  # per observation k = 0..T
+    si_sdr_mixture_phase: list[float] = field(default_factory=list)
+    stft_distance: list[float] = field(default_factory=list)
+    path_length: float = 0.0  # metres moved
+    shortest_path: float = 0.0  # geodesic metres from the start to the target
+    success: bool = False  # far-target: stopped on the target's node
+
+    @property
+    def steps(self) -> int:
+        return len(self.actions)
+
+    @property
+    def spl(self) -> float:
+        if not self.success:
+            return 0.0
+        return self.shortest_path / max(self.path_length, self.shortest_path, 1e-9)
+
+    def final(self, metric: str) -> float:
+        return float(getattr(self, metric)[-1])
+
+    def to_dict(self) -> dict:
+        return {**dataclasses.asdict(self), "spl": self.spl}
+
+    @classmethod
+    def from_dict(cls, values: dict) -> EpisodeResult:
+        names = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in values.items() if k in names})
+
+
+class EpisodeTracker:
+    """Builds one EpisodeResult step by step: ``observe`` each scored observation in step order,
+    ``act`` each action, then ``finish``."""
+
+    def __init__(self, result: EpisodeResult, start_position: np.ndarray) -> None:
+        self.result = result
+        self.position = np.asarray(start_position, np.float64)[:2]
+        self.at_target = False
+
+    def observe(self, step: int, *, si_sdr: float, si_sdr_mixture_phase: float, stft_distance: float,
+                position: np.ndarray, at_target: bool) -> None:
+        r = self.result
+        if step != len(r.si_sdr):
+            raise ConfigError(f"episode {r.episode_id}: step {step} scored out of order "
+                              f"(expected step {len(r.si_sdr)})")
+        r.si_sdr.append(float(si_sdr))
+        r.si_sdr_mixture_phase.append(float(si_sdr_mixture_phase))
+        r.stft_distance.append(float(stft_distance))
+        new = np.asarray(position, np.float64)[:2]
+        r.path_length += float(np.linalg.norm(new - self.position))
+        self.position, self.at_target = new, bool(at_target)
+
+    def act(self, step: int, action: int) -> None:
+        r = self.result
+        if step != len(r.actions):
+            raise ConfigError(f"episode {r.episode_id}: action for step {step} out of order "
+                              f"(expected step {len(r.actions)})")
+        r.actions.append(int(action))
+
+    def finish(self) -> EpisodeResult:
+        r = self.result
+        if len(r.si_sdr) != len(r.actions) + 1:
+            raise ConfigError(f"episode {r.episode_id}: {len(r.si_sdr)} scored observations for "
+                              f"{len(r.actions)} actions (expected one more observation)")
+        r.success = r.task == "far_target" and bool(r.actions) and r.actions[-1] == STOP and self.at_target
+        return r
+
+
+def mean_ci(values: Sequence[float], *, level: float = 0.95) -> tuple[float, float]:
+    """Mean and half-width of its ``level`` confidence interval (Student t; 0 for one value)."""
+    x = np.asarray(values, np.float64)
+    if x.size == 0:
+        return math.nan, math.nan
+    if x.size == 1:
+        return float(x[0]), 0.0
+    sem = x.std(ddof=1) / math.sqrt(x.size)
+    return float(x.mean()), float(stats.t.ppf(0.5 + level / 2, x.size - 1) * sem)
+
+
+GROUP_KEYS = ("controller", "task", "sound_split")
+
+
+def summarize(results: Iterable[EpisodeResult], *, by: Sequence[str] = GROUP_KEYS) -> list[dict]:
+    """One row per group: episodes, final-step mean and 95% CI of every metric, SR and SPL."""
+    groups: dict[tuple, list[EpisodeResult]] = {}
+    for r in results:
+        groups.setdefault(tuple(getattr(r, k) for k in by), []).append(r)
+    rows = []
+    for key, members in groups.items():
+        row = dict(zip(by, key))
+        row["episodes"] = len(members)
+        for metric in METRICS:
+            row[metric], row[f"{metric}_ci95"] = mean_ci([m.final(metric) for m in members])
+        far = [m for m in members if m.task == "far_target"]
+        row["success_rate"] = float(np.mean([m.success for m in far])) if far else None
+        row["spl"] = float(np.mean([m.spl for m in far])) if far else None
+        rows.append(row)
+    return rows
+
+
+def _cell(value) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.3f}" if isinstance(value, float) else str(value)
+
+
+def markdown_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> str:
+    """The paper-style table: final-step metrics as mean ± 95% CI, SR and SPL where they apply."""
+    head = [*by, "episodes", *(METRIC_LABELS[m] for m in METRICS), "SR", "SPL"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        cells = [str(row[k]) for k in by] + [str(row["episodes"])]
+        cells += [f"{row[m]:.2f} ± {row[f'{m}_ci95']:.2f}" for m in METRICS]
+        cells += [_cell(row["success_rate"]), _cell(row["spl"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, title: str = "Results",
+                  meta: dict | None = None, plot: bool = True) -> dict[str, Path]:
+    """Write results.md, results.csv (one row per episode), results.json (episodes + summary + meta)
+    and si_sdr_vs_step.png into ``out_dir``; returns the paths by kind."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = summarize(results)
+    paths = {"markdown": out / "results.md", "csv": out / "results.csv", "json": out / "results.json"}
+    note = ("Final-step scores, mean ± 95% CI over episodes. SI-SDR (GT phase): the estimate rebuilt "
+            "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
+            "(mixture phase): rebuilt with the mixture's phase (deployable).\n")
+    paths["markdown"].write_text(f"# {title}\n\n{note}\n{markdown_table(rows)}")
+    with paths["csv"].open("w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(["episode_id", *GROUP_KEYS, "scene_id", "target_class", "steps",
+                         *(f"final_{m}" for m in METRICS), "success", "spl", "path_length", "shortest_path"])
+        for r in results:
+            writer.writerow([r.episode_id, r.controller, r.task, r.sound_split, r.scene_id, r.target_class,
+                             r.steps, *(f"{r.final(m):.6f}" for m in METRICS), int(r.success),
+                             f"{r.spl:.6f}", f"{r.path_length:.3f}", f"{r.shortest_path:.3f}"])
+    paths["json"].write_text(json.dumps({"meta": meta or {}, "summary": rows,
+                                         "episodes": [r.to_dict() for r in results]}, indent=1))
+    if plot and results:
+        paths["plot"] = plot_si_sdr_vs_step(results, out / "si_sdr_vs_step.png", title=title)
+    return paths
+
+
+def read_results(path: str | Path) -> list[EpisodeResult]:
+    """The episodes of a results.json written by :func:`write_results`."""
+    try:
+        document = json.loads(Path(path).read_text())
+        return [EpisodeResult.from_dict(e) for e in document["episodes"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"cannot read results file {path}: {exc}") from exc
+
+
+def plot_si_sdr_vs_step(results: Sequence[EpisodeResult], path: str | Path, *, title: str = "") -> Path:
+    """Mean SI-SDR (GT phase) per step with its 95% CI band, one line per controller and task."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups: dict[tuple[str, str, str], list[EpisodeResult]] = {}
+    for r in results:
+        groups.setdefault((r.controller, r.task, r.sound_split), []).append(r)
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for (controller, task, split), members in sorted(groups.items()):
+        length = min(len(m.si_sdr) for m in members)  # Stop can end far-target episodes early
+        per_step = np.array([m.si_sdr[:length] for m in members])
+        stats_ = [mean_ci(per_step[:, k]) for k in range(length)]
+        mean = np.array([s[0] for s in stats_])
+        half = np.array([s[1] for s in stats_])
+        steps = np.arange(length)
+        ax.plot(steps, mean, label=f"{controller} ({task}, {split}, n={len(members)})")
+        ax.fill_between(steps, mean - half, mean + half, alpha=0.2)
+    ax.set_xlabel("step")
+    ax.set_ylabel("SI-SDR (dB, GT phase)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path)

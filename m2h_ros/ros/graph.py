@@ -1,0 +1,36 @@
+"""Who listens to what: the simulator waits for its consumers before step 0 (volatile step topics
+would otherwise drop the first messages), and checks the recorder has every pipeline topic."""
+
+from __future__ import annotations
+
+from rclpy.node import Node
+
+from m2h_ros import topics
+
+# The topics each pipeline node must be subscribed to before the first step.
+CONSUMERS = {
+    "separator_node": (topics.AUDIO, topics.EPISODE),
+    "controller_node": (topics.AUDIO, topics.ODOM, topics.EPISODE, topics.REFINED),
+    "evaluator_node": (topics.GROUND_TRUTH, topics.AUDIO, topics.ODOM, topics.EPISODE, topics.REFINED,
+                       topics.COMMAND),
+}
+PIPELINE_TOPICS = tuple(value for name, value in vars(topics).items() if name.isupper())
+
+
+def missing_consumers(node: Node, expected: tuple[str, ...]) -> list[str]:
+    """'node: topic, topic' for every expected node not yet subscribed to the topics it needs; the
+    recorder needs every pipeline topic that has a publisher."""
+    subscribers: dict[str, set[str]] = {}
+    published: list[str] = []
+    for topic in PIPELINE_TOPICS:
+        name = node.resolve_topic_name(topic)
+        subscribers[topic] = {info.node_name for info in node.get_subscriptions_info_by_topic(name)}
+        if node.get_publishers_info_by_topic(name):
+            published.append(topic)
+    missing = []
+    for expected_node in expected:
+        needed = published if expected_node == "recorder_node" else CONSUMERS[expected_node]
+        lacking = [t for t in needed if expected_node not in subscribers[t]]
+        if lacking:
+            missing.append(f"{expected_node}: {', '.join(lacking)}")
+    return missing

@@ -1,0 +1,19 @@
+"""Topic names of the pipeline (relative, so a namespace or remapping moves them; the ground truth is
+absolute under /ground_truth, where only the evaluator subscribes). ROS-free: replay scoring reads
+bags by these names too."""
+
+AUDIO = "audio"  # m2h_msgs/BinauralAudio: the binaural mixture of a step (sim)
+RGB = "camera/rgb/image_raw"  # sensor_msgs/Image rgb8 (sim)
+DEPTH = "camera/depth/image_raw"  # sensor_msgs/Image 32FC1, metres (sim)
+CAMERA_INFO = "camera/rgb/camera_info"  # sensor_msgs/CameraInfo, same stamp as the images (sim)
+ODOM = "odom"  # nav_msgs/Odometry: pose of the step (sim)
+AGENT_POSE = "agent_pose"  # m2h_msgs/AgentPose: the same pose on the navigation grid (sim)
+EPISODE = "episode"  # m2h_msgs/EpisodeInfo, latched (sim)
+GROUND_TRUTH = "/ground_truth/target"  # m2h_msgs/GroundTruth (sim -> evaluator only)
+SEPARATED_BINAURAL = "separator/binaural"  # m2h_msgs/Spectrogram SEPARATED_BINAURAL (separator)
+MONAURAL = "separator/monaural"  # m2h_msgs/Spectrogram MONAURAL_ESTIMATE (separator)
+REFINED = "separator/refined"  # m2h_msgs/Spectrogram REFINED (separator)
+SEPARATED_AUDIO = "separator/audio"  # m2h_msgs/BinauralAudio, 1 channel: refined, mixture phase
+COMMAND = "cmd"  # m2h_msgs/MotionCommand (controller)
+STEP_SCORE = "scores/step"  # m2h_msgs/StepScore (evaluator)
+EPISODE_SCORE = "scores/episode"  # m2h_msgs/EpisodeScore (evaluator)

@@ -1,0 +1,198 @@
+#!/usr/bin/env python3
+"""Run the whole pipeline as five ROS 2 processes: sim, separator, controller, evaluator, recorder.
+
+    python scripts/run_pipeline.py --episodes 3 --controller doa --out runs/demo
+    python scripts/run_pipeline.py --set sim_node.mic_noise=0.1 --set controller_node.seed=3
+
+Builds the data the episodes need first (sound library, episode file; RIR banks of the sources are
+built by the simulator on first use), starts every node with its params file from params/ (plus the
+overrides), waits for the simulator to finish its episodes, then stops the other nodes in order
+(SIGINT, wait, SIGKILL if one hangs) and prints the scores table and where the bag, the tables and the
+plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import yaml
+
+from m2h_ros.errors import M2HError
+
+ROOT = Path(__file__).resolve().parents[1]
+NODES = ("recorder_node", "evaluator_node", "controller_node", "separator_node", "sim_node")  # start order
+STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "recorder_node")
+STOP_TIMEOUT_S = 20.0
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    parser.add_argument("--episodes", type=int, default=3, help="episodes to play (default 3)")
+    parser.add_argument("--first", type=int, default=0, help="index of the first test episode")
+    parser.add_argument("--task", default="near_target", choices=("near_target", "far_target"))
+    parser.add_argument("--sound-split", default="unheard", choices=("heard", "unheard"))
+    parser.add_argument("--controller", default=None, help="controller_node policy (default: its params file)")
+    parser.add_argument("--separator-checkpoint", default=None, help="separator .pt (default: the shipped one)")
+    parser.add_argument("--mode", default="lockstep", choices=("lockstep", "free_running"))
+    parser.add_argument("--rate", type=float, default=None, help="free_running steps per second")
+    parser.add_argument("--step-timeout", type=float, default=30.0, help="seconds a node may take per step")
+    parser.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
+                        help="override any node parameter (repeatable)")
+    parser.add_argument("--out", type=Path, default=None, help="run directory (default runs/<date-time>)")
+    parser.add_argument("--no-record", action="store_true", help="run without the recorder")
+    return parser.parse_args(argv)
+
+
+def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
+    """Per node, the parameter values this run sets (on top of the node's params file)."""
+    record = not args.no_record
+    expect = ["separator_node", "controller_node", "evaluator_node"] + (["recorder_node"] if record else [])
+    params: dict[str, dict[str, object]] = {node: {} for node in NODES}
+    params["sim_node"].update(task=args.task, sound_split=args.sound_split, num_episodes=args.episodes,
+                              first_episode=args.first, mode=args.mode, step_timeout_s=args.step_timeout,
+                              expect_nodes=expect)
+    if args.rate is not None:
+        params["sim_node"]["rate_hz"] = args.rate
+    if args.controller:
+        params["controller_node"]["policy"] = args.controller
+    if args.separator_checkpoint:
+        params["separator_node"]["checkpoint"] = str(Path(args.separator_checkpoint).resolve())
+    params["evaluator_node"]["output_dir"] = str(args.out / "scores")
+    params["recorder_node"]["output"] = str(args.out / "bag")
+    for item in args.set:
+        node, sep, assignment = item.partition(".")
+        name, eq, value = assignment.partition("=")
+        if not sep or not eq or node not in params:
+            raise SystemExit(f"run_pipeline: --set {item!r} must be NODE.PARAM=VALUE with NODE one of "
+                             f"{', '.join(NODES)}")
+        params[node][name] = yaml.safe_load(value)
+    return params
+
+
+def ros_value(value: object) -> str:
+    """A Python value as a -p NAME:=VALUE right-hand side (YAML, as ros2 parses it)."""
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(map(str, value)) + "]"
+    return str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def sim_config(params: dict[str, object]):
+    """The SimConfig the sim node will build (params file + overrides): validated before any start."""
+    from m2h_ros.node_configs import SimConfig
+
+    base = SimConfig.from_yaml(ROOT / "params" / "sim_node.yaml", "sim_node")
+    return base.replace(**{k: tuple(v) if isinstance(v, list) else v for k, v in params.items()})
+
+
+def prepare_data(config) -> None:
+    """What the sim needs before it starts: the sound library and the episode file."""
+    from m2h_ros import sim_world
+
+    sim_world.sim_episodes(config, sim_world.sound_library(config.sound_library, build=True))
+
+
+def launcher() -> list[str]:
+    if shutil.which("ros2run"):
+        return ["ros2run", "m2h_ros"]
+    if shutil.which("ros2"):
+        return ["ros2", "run", "m2h_ros"]
+    raise SystemExit("run_pipeline: neither ros2run (source env.sh) nor ros2 is on PATH")
+
+
+def stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(timeout=STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def last_error(log: Path) -> str:
+    lines = [line for line in log.read_text(errors="replace").splitlines() if "FATAL" in line or "ERROR" in line
+             or "Error" in line]
+    return lines[-1].strip() if lines else ""
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    args.out = (args.out or ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")).resolve()
+    if (args.out / "bag").exists():
+        raise SystemExit(f"run_pipeline: {args.out / 'bag'} exists; choose another --out")
+    params = overrides(args)
+    try:
+        prepare_data(sim_config(params["sim_node"]))
+    except M2HError as exc:
+        raise SystemExit(f"run_pipeline: {exc}") from exc
+    (args.out / "logs").mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
+    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    print(f"[run] ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, run directory {args.out}", flush=True)
+    procs: dict[str, subprocess.Popen] = {}
+    logs: dict[str, Path] = {}
+    started = time.monotonic()
+    try:
+        for node in NODES:
+            if node == "recorder_node" and args.no_record:
+                continue
+            logs[node] = args.out / "logs" / f"{node}.log"
+            command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
+            for name, value in params[node].items():
+                command += ["-p", f"{name}:={ros_value(value)}"]
+            procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,
+                                           env=env, start_new_session=True, cwd=ROOT)
+        while procs["sim_node"].poll() is None:
+            early = [n for n, p in procs.items() if n != "sim_node" and p.poll() is not None]
+            if early:
+                print(f"[run] {', '.join(early)} exited during the run; the simulator will report the "
+                      f"missing answers", flush=True)
+                procs["sim_node"].wait()
+                break
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        print("[run] interrupted: stopping every node", flush=True)
+        if "sim_node" in procs:
+            stop(procs["sim_node"])
+    finally:
+        for node in STOP_ORDER:
+            if node in procs:
+                stop(procs[node])
+        if "sim_node" in procs:
+            stop(procs["sim_node"])
+    elapsed = time.monotonic() - started
+    failed = {n: p.returncode for n, p in procs.items() if p.returncode != 0}
+    print(f"[run] finished in {elapsed:.1f} s", flush=True)
+    for node, proc in procs.items():
+        detail = "" if proc.returncode == 0 else f"  <- {last_error(logs[node])}"
+        print(f"[run]   {node:16s} exit {proc.returncode}{detail}")
+    table = args.out / "scores" / "results.md"
+    if table.exists():
+        print()
+        print(table.read_text())
+    print(f"[run] scores : {table if table.exists() else '(none)'}")
+    plot = args.out / "scores" / "si_sdr_vs_step.png"
+    print(f"[run] plot   : {plot if plot.exists() else '(none)'}")
+    if not args.no_record:
+        print(f"[run] bag    : {args.out / 'bag'}")
+    print(f"[run] logs   : {args.out / 'logs'}")
+    if failed:
+        print(f"[run] FAILED: {', '.join(f'{n} (exit {c})' for n, c in failed.items())}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
