@@ -180,9 +180,10 @@ class ClipSeparation:
     memory: torch.Tensor  # (B, S, H, W) refined estimate to pass to the next step
 
 
-def _sliced_magnitude(spec: np.ndarray, n_slices: int) -> torch.Tensor:
-    """``to_slices(|spec|)``, (B, C, F, T) -> (B, C * n_slices, F // n_slices, T), as a channels_last
-    tensor written in one pass (no separate magnitude, slicing copy and layout conversion)."""
+def network_input(spec: np.ndarray, *, n_slices: int = DEFAULT_STFT.n_freq_slices) -> torch.Tensor:
+    """The networks' input for a complex spectrogram (B, C, F, T): ``to_slices(|spec|)``, (B, C * n_slices,
+    F // n_slices, T) float32, as a channels_last CPU tensor (the layout the fused convolutions compute
+    in), written in one pass: no separate magnitude, slicing copy and layout conversion."""
     batch, channels, n_freq, n_frames = spec.shape
     height = n_freq // n_slices
     out = np.empty((batch, height, n_frames, channels, n_slices), dtype=np.float32)
@@ -209,7 +210,7 @@ def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int |
     separator.config.check_stft(config)
     spec = stft(mixture, config=config)  # (B, 2, F, T) complex64
     device = next(separator.parameters()).device
-    sliced = _sliced_magnitude(spec, config.n_freq_slices)
+    sliced = network_input(spec, n_slices=config.n_freq_slices)
     classes = torch.as_tensor(np.broadcast_to(np.asarray(class_index), (mixture.shape[0],)).copy(), device=device)
     reset_t = None if reset is None else torch.as_tensor(np.asarray(reset, dtype=bool), device=device)
     with torch.inference_mode():

@@ -19,8 +19,8 @@ from m2h_ros.models.separator import (
     ClipSeparation,
     Separator,
     SeparatorConfig,
-    _sliced_magnitude,
     count_parameters,
+    network_input,
     separate_clip,
 )
 from m2h_ros.models.unet import MemoryRefiner, UNet
@@ -159,7 +159,7 @@ def test_parameter_counts_differ_by_preset() -> None:
 
 def test_separate_clip_network_input_is_the_sliced_magnitude() -> None:
     spec = stft(np.random.default_rng(6).standard_normal((3, 2, 16000)).astype(np.float32))
-    sliced = _sliced_magnitude(spec, DEFAULT_STFT.n_freq_slices)
+    sliced = network_input(spec)
     assert sliced.is_contiguous(memory_format=torch.channels_last)
     assert np.array_equal(sliced.numpy(), to_slices(np.abs(spec)))
 
