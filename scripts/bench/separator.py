@@ -13,12 +13,13 @@ Per preset, at batch 1 with 1 and 2 torch threads:
 
 Then batch 32, and (compact) a thread sweep over batch sizes, next to what
 ``models.threads.inference_threads`` picks. The fused outputs are checked against the reference
-(max error relative to the peak). Every figure is the median and the minimum of ``--repeats`` runs;
+(max error relative to the peak). Every figure is the median and the minimum of ``--repeats`` runs
+(batch 32: a fifth of them, 3 to 10);
 on a shared machine the minimum is the better estimate of the uncontended cost, and the CPU time of
 one thread (``cpu``) is the figure least disturbed by other processes. The load average is printed
 before and after.
 
-    .venv/bin/python scripts/bench/separator.py [--repeats 30] [--presets compact paper] [--no-sweep]
+    .venv/bin/python scripts/bench/separator.py [--repeats 60] [--presets compact paper] [--no-sweep]
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ def bench_preset(name: str, repeats: int) -> dict[str, float]:
     height, width = DEFAULT_STFT.slice_shape
     bare_input = torch.rand(1, config.binaural_channels + 1, height, width)
     for batch in (1, 32):
-        n = repeats if batch == 1 else max(3, repeats // 5)
+        n = repeats if batch == 1 else min(10, max(3, repeats // 5))
         warmup = 5 if batch == 1 else 2
         mixture, classes, memory = network_inputs(config, batch)
         for threads in THREADS:
@@ -158,7 +159,7 @@ def thread_sweep(repeats: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=30)
+    parser.add_argument("--repeats", type=int, default=60)
     parser.add_argument("--presets", nargs="+", choices=PRESET_NAMES, default=list(PRESET_NAMES))
     parser.add_argument("--no-sweep", action="store_true", help="skip the thread sweep over batch sizes")
     args = parser.parse_args()
