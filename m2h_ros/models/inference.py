@@ -75,10 +75,12 @@ class FusedConv(nn.Module):
             self.activation, self.scalars = "leaky_relu", [float(activation.negative_slope)]
         else:
             self.activation, self.scalars = "relu", []
-        # One kernel per input (C, H, W), dtype and device kind, made on first use. On CPU it holds the
-        # weight reordered for oneDNN: the layout oneDNN picks depends on the input's spatial size, not
-        # on the batch (checked: a weight packed for batch 1 serves batch 32). A bound closure keeps
-        # the per-call Python work small (it is a visible part of a 50-100 us layer).
+        # One kernel per input (C, H, W), dtype, device kind and torch thread count, made on first use.
+        # On CPU it holds the weight reordered for oneDNN, whose layout depends on the input's spatial
+        # size and on the thread count (a weight packed under 2 threads made 1-thread steps 2.5x
+        # slower: oneDNN reordered it again on every call), not on the batch (a weight packed for
+        # batch 1 serves batch 32). A bound closure keeps the per-call Python work small (it is a
+        # visible part of a 50-100 us layer).
         self._kernels: dict[tuple, Callable[[torch.Tensor], torch.Tensor]] = {}
 
     def __getstate__(self) -> dict:
@@ -86,7 +88,7 @@ class FusedConv(nn.Module):
         return {**self.__dict__, "_kernels": {}}
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        key = (x.shape[1:], x.dtype, x.is_cpu)
+        key = (x.shape[1:], x.dtype, x.is_cpu, torch.get_num_threads())
         kernel = self._kernels.get(key)
         if kernel is None:
             kernel = self._kernels[key] = self._kernel(x)

@@ -3,21 +3,24 @@
 
 Per preset, at batch 1 with 1 and 2 torch threads:
 
-* ``clip``: the whole per-step path a node runs, ``separate_clip`` on a 1 s binaural waveform with the
-  fused model (``fuse_for_inference``): STFT, f^B, f^M, f^R, and the mixture-phase inverse STFT.
-  Its parts: ``stft`` and ``rebuild`` (numpy, one thread), ``step`` (the networks only).
-* ``reference``: the networks as trained (eager, BatchNorm layers), under ``torch.inference_mode``.
+* ``clip``: the whole per-step path, ``separate_clip`` on a 1 s binaural waveform with the fused model
+  (``fuse_for_inference``): STFT, f^B, f^M, f^R and the mixture-phase inverse STFT. Its numpy parts
+  are timed too (``stft``, ``rebuild``: one thread whatever torch uses).
+* ``step``: the fused networks only; ``reference``: the networks as trained (eager, BatchNorm layers),
+  both under ``torch.inference_mode``.
 * ``bare unet``: one plain eager U-Net of the same widths (33 -> 32 channels, BatchNorm, eval). A step
   runs two U-Nets plus the refiner, so ``clip / bare unet`` near 2 means no cost beyond two plain
-  U-Net forwards; below 2, the fused path beats the plain layers.
+  U-Net forwards; below 2, the fused path beats plain layers.
 
-Then batch 32, and (compact) a thread sweep over batch sizes, next to what
-``models.threads.inference_threads`` picks. The fused outputs are checked against the reference
-(max error relative to the peak). Every figure is the median and the minimum of ``--repeats`` runs
-(batch 32: a fifth of them, 3 to 10);
-on a shared machine the minimum is the better estimate of the uncontended cost, and the CPU time of
-one thread (``cpu``) is the figure least disturbed by other processes. The load average is printed
-before and after.
+Then batch 32 (fused and reference), and (compact) a thread sweep over batch sizes next to what
+``models.threads.inference_threads`` picks. The fused outputs are checked against the reference (max
+error relative to the peak).
+
+The machine is shared, so the candidates of a table are timed in rounds (each round runs every
+candidate once: all see the same load) and each gets the median and the minimum wall time of
+``--repeats`` rounds (batch 32: a fifth, 3 to 10), and the minimum CPU time. The minimum is the
+better estimate of the uncontended cost; at 1 thread the CPU time is the cost least disturbed by
+other processes. The load average is printed before and after.
 
     .venv/bin/python scripts/bench/separator.py [--repeats 60] [--presets compact paper] [--no-sweep]
 """
@@ -55,16 +58,26 @@ THREADS = (1, 2)
 SWEEP_BATCHES = (1, 2, 4, 8, 16, 32)
 
 
-def timed_ms(fn: Callable[[], object], repeats: int, *, clock=time.perf_counter, warmup: int = 5) -> tuple[float, float]:
-    """(median, minimum) time in ms by ``clock``."""
-    for _ in range(warmup):
-        fn()
-    times = []
+def timed_rounds(fns: dict[str, Callable[[], object]], repeats: int, *, threads: int | dict[str, int] = 1,
+                 warmup: int = 5) -> dict[str, dict[str, float]]:
+    """Per candidate: ``median`` and ``min`` wall ms and ``cpu`` (min CPU ms) over ``repeats`` rounds,
+    each round running every candidate once; ``threads`` (one count, or one per candidate)."""
+    counts = threads if isinstance(threads, dict) else dict.fromkeys(fns, threads)
+    for name, fn in fns.items():
+        torch.set_num_threads(counts[name])
+        for _ in range(warmup):
+            fn()
+    wall: dict[str, list[float]] = {name: [] for name in fns}
+    cpu: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(repeats):
-        start = clock()
-        fn()
-        times.append(clock() - start)
-    return 1000.0 * float(np.median(times)), 1000.0 * min(times)
+        for name, fn in fns.items():
+            torch.set_num_threads(counts[name])
+            start_wall, start_cpu = time.perf_counter(), time.process_time()
+            fn()
+            wall[name].append(time.perf_counter() - start_wall)
+            cpu[name].append(time.process_time() - start_cpu)
+    return {name: {"median": 1000.0 * float(np.median(wall[name])), "min": 1000.0 * min(wall[name]),
+                   "cpu": 1000.0 * min(cpu[name])} for name in fns}
 
 
 def load_average() -> str:
@@ -97,64 +110,73 @@ def relative_error(reference: Separator, fused: Separator, config: SeparatorConf
         return max(float((a - b).abs().max() / a.abs().max()) for a, b in pairs)
 
 
-def bench_preset(name: str, repeats: int) -> dict[str, float]:
+def bench_preset(name: str, repeats: int) -> dict:
+    """{"params", "checkpoint_mb", "fused_rel_error", "numpy": {...}, (batch, threads): {candidate: figures}}."""
     torch.manual_seed(0)
     config = SeparatorConfig.preset(name)
     reference = with_running_stats(Separator(config)).eval()
     fused = fuse_for_inference(reference)
     bare = UNet(config.binaural_channels + 1, config.binaural_channels, config.unet_channels).eval()
-    row: dict[str, float] = {"params": count_parameters(reference), "fused_rel_error": relative_error(reference, fused, config)}
+    out: dict = {"params": count_parameters(reference), "fused_rel_error": relative_error(reference, fused, config)}
     with tempfile.TemporaryDirectory() as tmp:
-        path = save_separator(Path(tmp) / f"{name}.pt", reference, classes=["speech", "music"])
-        row["checkpoint_mb"] = path.stat().st_size / 1e6
+        out["checkpoint_mb"] = save_separator(Path(tmp) / f"{name}.pt", reference,
+                                              classes=["speech", "music"]).stat().st_size / 1e6
     binaural = np.random.default_rng(0).standard_normal((1, 2, DEFAULT_STFT.clip_samples)).astype(np.float32)
     spec = stft(binaural)
     magnitude, phase = np.abs(spec[:, 0]), spec.mean(axis=1)
-    row["stft_ms"], row["stft_ms_min"] = timed_ms(lambda: stft(binaural), repeats)
-    row["rebuild_ms"], row["rebuild_ms_min"] = timed_ms(
-        lambda: rebuild_with_phase(magnitude, phase, length=binaural.shape[-1]), repeats)
+    out["numpy"] = timed_rounds({"stft": lambda: stft(binaural),
+                                 "rebuild": lambda: rebuild_with_phase(magnitude, phase, length=binaural.shape[-1])},
+                                repeats)
     height, width = DEFAULT_STFT.slice_shape
     bare_input = torch.rand(1, config.binaural_channels + 1, height, width)
-    for batch in (1, 32):
-        n = repeats if batch == 1 else min(10, max(3, repeats // 5))
-        warmup = 5 if batch == 1 else 2
-        mixture, classes, memory = network_inputs(config, batch)
-        for threads in THREADS:
-            torch.set_num_threads(threads)
-            tag = f"b{batch}_t{threads}"
-            with torch.inference_mode():
-                for label, model in (("reference", reference), ("step", fused)):
-                    row[f"{label}_{tag}"], row[f"{label}_{tag}_min"] = timed_ms(
-                        lambda m=model: m(mixture, classes, memory), n, warmup=warmup)
-                if batch == 1:
-                    row[f"bare_{tag}"], row[f"bare_{tag}_min"] = timed_ms(lambda: bare(bare_input), n)
+    with torch.inference_mode():
+        for batch in (1, 32):
+            mixture, classes, memory = network_inputs(config, batch)
+            fns = {"step": lambda: fused(mixture, classes, memory), "reference": lambda: reference(mixture, classes, memory)}
             if batch == 1:
-                row[f"clip_{tag}"], row[f"clip_{tag}_min"] = timed_ms(lambda: separate_clip(fused, binaural, 0), n)
-        if batch == 1:  # CPU time of one thread: barely affected by other processes on the machine
-            torch.set_num_threads(1)
-            row["clip_b1_cpu"], _ = timed_ms(lambda: separate_clip(fused, binaural, 0), n, clock=time.process_time)
-            row["reference_b1_cpu"], _ = timed_ms(lambda: reference(mixture, classes, memory), n,
-                                                  clock=time.process_time)
-    return row
+                fns = {"clip": lambda: separate_clip(fused, binaural, 0), **fns, "bare unet": lambda: bare(bare_input)}
+            n = repeats if batch == 1 else min(10, max(3, repeats // 5))
+            for threads in THREADS:
+                out[batch, threads] = timed_rounds(fns, n, threads=threads, warmup=5 if batch == 1 else 2)
+    return out
 
 
 def thread_sweep(repeats: int) -> None:
-    """Fused compact step (networks only), min ms by batch size and thread count."""
+    """Fused compact step (networks only) by batch size, 1 and 2 threads timed in alternation."""
     config = SeparatorConfig.preset("compact")
     fused = fuse_for_inference(with_running_stats(Separator(config)).eval())
-    print("\nthread sweep, fused compact step (networks), min ms of "
-          f"{repeats} runs (median in brackets); load average {load_average()}")
-    print(f"{'batch':>6}" + "".join(f"{f'{t} thread(s)':>22}" for t in THREADS) + f"{'fastest':>9}{'picked':>8}")
+    print(f"\nthread sweep, fused compact step (networks), min ms of {repeats} rounds (median); "
+          f"load average {load_average()}")
+    print(f"{'batch':>6}" + "".join(f"{f'{t} thread(s)':>20}" for t in THREADS) + f"{'fastest':>9}{'picked':>8}")
     with torch.inference_mode():
         for batch in SWEEP_BATCHES:
             mixture, classes, memory = network_inputs(config, batch)
-            cells = {}
-            for threads in THREADS:
-                torch.set_num_threads(threads)
-                cells[threads] = timed_ms(lambda: fused(mixture, classes, memory), repeats, warmup=3)
-            fastest = min(THREADS, key=lambda t: cells[t][1])
-            print(f"{batch:>6}" + "".join(f"{cells[t][1]:>12.2f} ({cells[t][0]:>7.2f})" for t in THREADS)
+            fns = {threads: lambda: fused(mixture, classes, memory) for threads in THREADS}
+            cells = timed_rounds(fns, repeats, threads={t: t for t in THREADS}, warmup=3)
+            fastest = min(THREADS, key=lambda t: cells[t]["min"])
+            print(f"{batch:>6}" + "".join(f"{cells[t]['min']:>11.2f} ({cells[t]['median']:>6.1f})" for t in THREADS)
                   + f"{fastest:>9}{min(inference_threads(batch), max(THREADS)):>8}")
+
+
+def print_preset(name: str, row: dict) -> None:
+    print(f"\n{name}: {row['params']:,} parameters, checkpoint {row['checkpoint_mb']:.1f} MB, "
+          f"fused vs reference max error {row['fused_rel_error']:.1e} of the peak")
+    print(f"{'ms':<34}" + "".join(f"{f'{t} thread(s): min':>20}{'median':>8}{'cpu':>8}" for t in THREADS))
+    for batch in (1, 32):
+        for candidate in row[batch, THREADS[0]]:
+            cells = "".join(f"{row[batch, t][candidate]['min']:>20.2f}{row[batch, t][candidate]['median']:>8.2f}"
+                            f"{row[batch, t][candidate]['cpu']:>8.2f}" for t in THREADS)
+            print(f"{f'batch {batch} {candidate}':<34}{cells}")
+    for part, figures in row["numpy"].items():
+        print(f"{f'batch 1 {part} (numpy)':<34}{figures['min']:>20.2f}{figures['median']:>8.2f}{figures['cpu']:>8.2f}")
+    best = min(THREADS, key=lambda t: row[1, t]["clip"]["min"])
+    figures = {candidate: row[1, best][candidate]["min"] for candidate in row[1, best]}
+    bare = figures["bare unet"]
+    print(f"batch 1, best: {best} thread(s): clip (STFT + f^B + f^M + f^R + iSTFT) {figures['clip']:.2f} ms, "
+          f"fused networks {figures['step']:.2f}, reference networks {figures['reference']:.2f}, bare U-Net "
+          f"{bare:.2f}; ratios to the bare U-Net: clip {figures['clip'] / bare:.2f}, fused networks "
+          f"{figures['step'] / bare:.2f}, reference networks {figures['reference'] / bare:.2f} "
+          f"(fused / reference {figures['step'] / figures['reference']:.2f})")
 
 
 def main() -> None:
@@ -163,36 +185,10 @@ def main() -> None:
     parser.add_argument("--presets", nargs="+", choices=PRESET_NAMES, default=list(PRESET_NAMES))
     parser.add_argument("--no-sweep", action="store_true", help="skip the thread sweep over batch sizes")
     args = parser.parse_args()
-    print(f"torch {torch.__version__}, {args.repeats} runs per figure (median, and min), {os.cpu_count()} CPUs, "
+    print(f"torch {torch.__version__}, {args.repeats} rounds per batch-1 figure, {os.cpu_count()} CPUs, "
           f"load average {load_average()}, OMP_WAIT_POLICY={os.environ['OMP_WAIT_POLICY']}")
-    rows = {name: bench_preset(name, args.repeats) for name in args.presets}
-    columns = ["params", "checkpoint_mb", "fused_rel_error", "stft_ms", "stft_ms_min", "rebuild_ms", "rebuild_ms_min"]
-    for batch in (1, 32):
-        for threads in THREADS:
-            labels = ("clip", "step", "reference", "bare") if batch == 1 else ("step", "reference")
-            columns += [f"{label}_b{batch}_t{threads}{suffix}" for label in labels for suffix in ("", "_min")]
-    columns += ["clip_b1_cpu", "reference_b1_cpu"]
-    print(f"{'figure (ms unless named)':<28}" + "".join(f"{name:>14}" for name in rows))
-    for column in columns:
-        cells = "".join(f"{row[column]:>14,.0f}" if column == "params" else f"{row[column]:>14.4g}"
-                        for row in rows.values())
-        print(f"{column:<28}{cells}")
-    print("\nbatch 1, best thread count by min:")
-    for name, row in rows.items():
-        best = min(THREADS, key=lambda t: row[f"clip_b1_t{t}_min"])
-        clip, bare = row[f"clip_b1_t{best}_min"], row[f"bare_b1_t{best}_min"]
-        reference = row[f"reference_b1_t{best}_min"]
-        print(f"  {name}: {best} thread(s): clip (STFT + f^B + f^M + f^R + iSTFT) {clip:.2f} ms "
-              f"(median {row[f'clip_b1_t{best}']:.2f}), networks {row[f'step_b1_t{best}_min']:.2f} ms, "
-              f"reference networks {reference:.2f} ms, bare U-Net {bare:.2f} ms; "
-              f"clip / bare U-Net {clip / bare:.2f}, fused networks / bare U-Net "
-              f"{row[f'step_b1_t{best}_min'] / bare:.2f}, reference networks / bare U-Net {reference / bare:.2f}")
-    if "paper" in rows:
-        for name, row in rows.items():
-            if name != "paper":
-                print(f"{name} / paper: params {row['params'] / rows['paper']['params']:.3f}, clip b1 t1 "
-                      f"{row['clip_b1_t1_min'] / rows['paper']['clip_b1_t1_min']:.3f}, step b32 t2 "
-                      f"{row['step_b32_t2_min'] / rows['paper']['step_b32_t2_min']:.3f}")
+    for name in args.presets:
+        print_preset(name, bench_preset(name, args.repeats))
     if not args.no_sweep:
         thread_sweep(args.repeats)
     print(f"\nload average at the end {load_average()}")

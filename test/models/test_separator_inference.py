@@ -88,14 +88,16 @@ def test_fused_equals_reference_without_onednn(pair, monkeypatch) -> None:
         assert_steps_close(reference(mixture, classes, memory), fused(mixture, classes, memory))
 
 
-def test_fused_small_widths_and_batch_changes() -> None:
-    # another width set; batch sizes alternate, so weights packed at one batch serve the others
+def test_fused_small_widths_batch_and_thread_changes() -> None:
+    # another width set; batch sizes and thread counts alternate (weights are packed per thread count)
     reference = trained_like(SeparatorConfig(unet_channels=(8, 16, 24, 24, 32), refiner_hidden=8), seed=3)
     fused = fuse_for_inference(reference)
     with torch.inference_mode():
-        for batch in (1, 4, 1, 2):
+        for batch, threads in ((1, 1), (4, 2), (1, 2), (2, 1)):
+            torch.set_num_threads(threads)
             mixture, classes, memory = inputs(batch, seed=10 + batch, channels_last=True)
             assert_steps_close(reference(mixture, classes, memory), fused(mixture, classes, memory))
+    torch.set_num_threads(1)
 
 
 def test_fused_copy_structure_and_original_untouched() -> None:
