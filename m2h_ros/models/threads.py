@@ -2,11 +2,13 @@
 
 At batch 1 a step is about 24 small convolutions whose cost is per-call overhead, which a second
 thread cannot split; it only adds a wake-up per operator, and loses outright whenever the other core
-is busy (on the shared 2-core machines, 2 threads made a batch-1 step 2-3x slower than 1). From a
-few clips per batch on, each convolution has enough arithmetic for more cores to pay. The threshold
-comes from ``scripts/bench/separator.py`` (its thread sweep over batch sizes, fused compact model,
-2 cores); more than 2 cores were not measured, so above the threshold this uses every core the
-process may run on, as torch would by default.
+is busy. The threshold comes from the thread sweep of ``scripts/bench/separator.py`` (fused compact
+model, 1 and 2 threads timed in alternation, 2-core shared machine, load average 6-13): one thread
+was fastest at batch 1, 2 and 4 in every sweep and at batch 8 in two of three; two threads won at
+batch 16 in two of three; at batch 32 one thread won all three (under that load the second core is
+rarely free). Above the threshold this uses every core the process may run on, as torch would by
+default; on an idle machine or one with more cores that is the likely winner, but it is not
+measured here (docs/separator.md, Inference speed).
 
 Usage (``torch.set_num_threads`` is process-wide, so set it once per run, not per step)::
 
@@ -20,7 +22,7 @@ import os
 from m2h_ros.errors import ConfigError
 
 # Largest batch that runs fastest on one thread (measured on 2 cores; see the module docstring).
-SINGLE_THREAD_MAX_BATCH = 2
+SINGLE_THREAD_MAX_BATCH = 8
 
 
 def available_cpus() -> int:
