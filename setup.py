@@ -16,6 +16,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/params", glob("params/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
@@ -25,6 +26,6 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES]
-        + ["m2h-separate = m2h_ros.separate_cli:main"],
+        + ["m2h-separate = m2h_ros.separate_cli:main", "m2h-eval = m2h_ros.replay_cli:main"],
     },
 )

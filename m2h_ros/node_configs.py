@@ -84,3 +84,5 @@ class RecorderConfig(Config):
     topics: tuple[str, ...] = setting((), "topics to record; empty: every topic seen on the graph")
     discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01,
                                         max=60.0)
+    flush_period_s: float = setting(0.25, "the open MCAP chunk is written to disk at least this often, "
+                                    "so a killed recorder loses at most about this much", min=0.01, max=60.0)

@@ -39,7 +39,7 @@ class EpisodeResult:
     sound_split: str
     scene_id: str
     target_class: str
-    actions: list[int] = field(default_factory=list)  # action answering observation k, k = 0..T-1
+    actions: list[int] = field(default_factory=list)  # action answering observation k, k = 0..T-1 (-1: none came, held)
     si_sdr: list[float] = field(default_factory=list)  # per observation k = 0..T
     si_sdr_mixture_phase: list[float] = field(default_factory=list)
     stft_distance: list[float] = field(default_factory=list)

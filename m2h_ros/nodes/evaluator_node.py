@@ -10,16 +10,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from m2h_msgs.msg import (BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, Spectrogram,
+from m2h_msgs.msg import (AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, Spectrogram,
                           StepScore)
-from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from m2h_ros import topics
 from m2h_ros.core.audio.scoring import score_magnitude
 from m2h_ros.core.audio.stft import DEFAULT_STFT
 from m2h_ros.core.results import EpisodeResult, EpisodeTracker, write_results
-from m2h_ros.core.world.episodes import STOP
 from m2h_ros.node_configs import EvaluatorConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.params import declare_config
@@ -28,13 +26,14 @@ from m2h_ros.ros.spin import run_node
 from m2h_ros.ros.sync import StepAssembler
 
 N, F, T = DEFAULT_STFT.clip_samples, DEFAULT_STFT.n_freq, DEFAULT_STFT.n_frames
+HELD = -1  # in results: no command arrived for the step in time (free-running mode held the robot)
 
 
 class EvaluatorNode(Node):
     def __init__(self):
         super().__init__("evaluator_node")
         self.config: EvaluatorConfig = declare_config(self, EvaluatorConfig)
-        self.assembler = StepAssembler({"truth", "refined", "audio", "odom"}, self.on_step)
+        self.assembler = StepAssembler({"truth", "refined", "audio", "pose"}, self.on_step)
         self.pub_step = self.create_publisher(StepScore, topics.STEP_SCORE, STEP,
                                               event_callbacks=publisher_events(self.get_logger(), topics.STEP_SCORE))
         self.pub_episode = self.create_publisher(EpisodeScore, topics.EPISODE_SCORE, STEP,
@@ -50,15 +49,15 @@ class EvaluatorNode(Node):
             (m.episode_id, m.step), "truth", m))
         subscribe(Spectrogram, topics.REFINED, lambda m: self.assembler.add(
             (m.episode_id, m.step), "refined", convert.spectrogram_from_msg(m, kind=Spectrogram.REFINED, shape=(F, T))))
-        subscribe(BinauralAudio, topics.AUDIO, self.on_audio)
-        subscribe(Odometry, topics.ODOM, lambda m: self.assembler.add_stamped(
-            convert.nanoseconds_of(m.header.stamp), "odom", convert.pose_from_odometry(m)))
-        subscribe(MotionCommand, topics.COMMAND, self.on_command)
+        subscribe(BinauralAudio, topics.AUDIO, lambda m: self.assembler.add(
+            (m.episode_id, m.step), "audio", convert.audio_from_msg(m, sample_rate=DEFAULT_STFT.sample_rate,
+                                                                    samples=N)))
+        subscribe(AgentPose, topics.AGENT_POSE, lambda m: self.assembler.add((m.episode_id, m.step), "pose", m))
+        subscribe(MotionCommand, topics.COMMAND, lambda m: self.controllers.setdefault(m.episode_id, m.controller))
         self.episodes: dict[str, EpisodeInfo] = {}
         self.parked: list[tuple[tuple[str, int], dict]] = []
         self.trackers: dict[str, EpisodeTracker] = {}
         self.controllers: dict[str, str] = {}
-        self.commands: dict[str, dict[int, int]] = {}  # episode -> step -> action not yet applied
         self.results: list[EpisodeResult] = []
         self.output = Path(self.config.output_dir) if self.config.output_dir else None
         self.get_logger().info(f"ready: results to {self.output or '(nowhere: output_dir is empty)'}")
@@ -68,27 +67,6 @@ class EvaluatorNode(Node):
         parked, self.parked = self.parked, []
         for key, parts in parked:
             self.on_step(key, parts)
-
-    def on_audio(self, msg: BinauralAudio) -> None:
-        key = (msg.episode_id, msg.step)
-        self.assembler.add(key, "audio", convert.audio_from_msg(msg, sample_rate=DEFAULT_STFT.sample_rate, samples=N))
-        self.assembler.bind(convert.nanoseconds_of(msg.header.stamp), key)
-
-    def on_command(self, msg: MotionCommand) -> None:
-        self.controllers[msg.episode_id] = msg.controller
-        self.commands.setdefault(msg.episode_id, {})[msg.step] = msg.action
-        self.apply_commands(msg.episode_id)
-
-    def apply_commands(self, episode_id: str) -> None:
-        """Commands can arrive before their episode's first step is scored: apply them in order."""
-        tracker = self.trackers.get(episode_id)
-        if tracker is None:
-            return
-        pending = self.commands.get(episode_id, {})
-        while len(tracker.result.actions) in pending:
-            step = len(tracker.result.actions)
-            tracker.act(step, pending.pop(step))
-        self.finish_if_done(episode_id)
 
     def on_step(self, key: tuple[str, int], parts: dict) -> None:
         episode_id, step = key
@@ -108,31 +86,28 @@ class EvaluatorNode(Node):
             result = EpisodeResult(episode_id=episode_id, controller=self.controllers.get(episode_id, ""),
                                    task=info.task, sound_split=info.split, scene_id=info.scene_id,
                                    target_class=info.target_class, shortest_path=truth_msg.geodesic_distance)
-            self.trackers[episode_id] = EpisodeTracker(result, parts["odom"])
+            self.trackers[episode_id] = EpisodeTracker(result, convert.position_of(parts["pose"]))
         tracker = self.trackers.get(episode_id)
         if tracker is None:
             self.get_logger().warning(f"{episode_id} step {step}: its step 0 was never seen; not scored")
             return
-        tracker.observe(step, **values, position=parts["odom"], at_target=truth_msg.at_target)
-        self.apply_commands(episode_id)
+        if step > 0:  # the pose tells which action (or hold) brought the robot here
+            tracker.act(step - 1, parts["pose"].last_action)
+        tracker.observe(step, **values, position=convert.position_of(parts["pose"]),
+                        at_target=truth_msg.at_target)
+        if truth_msg.last_step:
+            self.finish(episode_id)
 
-    def finish_if_done(self, episode_id: str) -> None:
-        """An episode ends at observation max_steps, or at the one after a far-target Stop."""
-        tracker, info = self.trackers[episode_id], self.episodes[episode_id]
-        r = tracker.result
-        observed = len(r.si_sdr)
-        stopped = info.task == "far_target" and r.actions and r.actions[-1] == STOP
-        if observed != len(r.actions) + 1 or not (observed == info.max_steps + 1 or stopped):
-            return
-        r.controller = self.controllers.get(episode_id, r.controller)
+    def finish(self, episode_id: str) -> None:
+        tracker = self.trackers.pop(episode_id)
+        tracker.result.controller = self.controllers.get(episode_id, "")
         result = tracker.finish()
-        del self.trackers[episode_id]
-        self.commands.pop(episode_id, None)
         self.results.append(result)
         self.pub_episode.publish(convert.episode_score_msg(result, stamp_ns=self.get_clock().now().nanoseconds))
+        held = result.actions.count(HELD)
         self.get_logger().info(f"{episode_id}: SI-SDR {result.final('si_sdr'):.2f} dB (GT phase), "
                                f"{result.final('si_sdr_mixture_phase'):.2f} dB (mixture phase) after "
-                               f"{result.steps} steps")
+                               f"{result.steps} steps" + (f", {held} held" if held else ""))
         if self.output is not None:
             write_results(self.results, self.output, title="m2h_ros pipeline run", plot=False)
 

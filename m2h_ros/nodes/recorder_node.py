@@ -8,9 +8,10 @@ from pathlib import Path
 import rclpy
 from rclpy.node import Node
 
+from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
 from m2h_ros.node_configs import RecorderConfig
-from m2h_ros.ros.introspection import adapted_qos, message_class
+from m2h_ros.ros.introspection import adapted_qos, message_class, offered_qos
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import subscription_events
 from m2h_ros.ros.spin import run_node
@@ -24,10 +25,11 @@ class RecorderNode(Node):
         super().__init__("recorder_node")
         self.config: RecorderConfig = declare_config(self, RecorderConfig)
         output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
-        self.writer = BagWriter(Path(output))
+        self.writer = BagWriter(Path(output), flush_period_s=self.config.flush_period_s)
         self.recorded: dict[str, str] = {}  # topic -> type name
         self.counts: dict[str, int] = {}
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
+        self.flusher = self.create_timer(self.config.flush_period_s, self.writer.flush)  # idle stretches too
         self.discover_topics()
         self.get_logger().info(f"recording to {self.writer.path}")
 
@@ -35,6 +37,10 @@ class RecorderNode(Node):
         wanted = set(self.config.topics)
         for topic, types in self.get_topic_names_and_types():
             if topic in self.recorded or topic in IGNORED_TOPICS or (wanted and topic not in wanted):
+                continue
+            # A topic seen only through its subscribers has no offer to adapt to (a best-effort
+            # subscription would drop messages under load): wait for a publisher, as rosbag2 does.
+            if not self.get_publishers_info_by_topic(topic):
                 continue
             if len(types) != 1:
                 self.get_logger().warning(f"not recording {topic}: it carries several types {types}")
@@ -44,6 +50,12 @@ class RecorderNode(Node):
                 msg_type = message_class(types[0])
             except (ImportError, AttributeError, ValueError):
                 self.get_logger().warning(f"not recording {topic}: type {types[0]} is not importable")
+                self.recorded[topic] = ""
+                continue
+            try:
+                self.writer.add_topic(topic, types[0], offered_qos=offered_qos(self, topic))
+            except BagError as exc:
+                self.get_logger().warning(f"not recording {topic}: {exc}")
                 self.recorded[topic] = ""
                 continue
             self.recorded[topic] = types[0]

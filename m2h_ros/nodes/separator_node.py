@@ -9,6 +9,7 @@ Unusable audio (wrong rate, channel count or length, NaN) ends the node with an 
 from __future__ import annotations
 
 import os
+import time
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: idle threads must not spin
 
@@ -54,7 +55,7 @@ class SeparatorNode(Node):
         self.classes: dict[str, str] = {}  # episode id -> target class
         self.waiting: list[BinauralAudio] = []
         self.episode_id: str | None = None
-        self.steps = 0
+        self.latencies: list[float] = []
         self.get_logger().info(f"ready: separator {loaded.path.name} ({loaded.config.unet_channels}), "
                                f"{self.config.torch_threads} torch thread(s)")
 
@@ -69,6 +70,7 @@ class SeparatorNode(Node):
         if target is None:
             self.waiting = [*self.waiting, msg][-MAX_WAITING_FRAMES:]
             return
+        started = time.perf_counter()
         mixture = convert.audio_from_msg(msg, sample_rate=self.stft.sample_rate, samples=self.stft.clip_samples)
         reset = msg.episode_id != self.episode_id
         self.episode_id = msg.episode_id
@@ -83,7 +85,15 @@ class SeparatorNode(Node):
                                                          stft=self.stft, **tag))
         waveform = out.waveform(mixture[None], config=self.stft)
         self.pub_audio.publish(convert.audio_msg(waveform, sample_rate=self.stft.sample_rate, **tag))
-        self.steps += 1
+        self.latencies.append(time.perf_counter() - started)
+
+    def destroy_node(self) -> None:
+        if self.latencies:
+            ms = 1000 * np.array(self.latencies)
+            # Printed, not logged: at Ctrl-C the context (and its rosout) may already be gone.
+            print(f"separator_node: {len(ms)} steps, latency per step (message in to all out) "
+                  f"p50 {np.median(ms):.1f} ms, p90 {np.percentile(ms, 90):.1f} ms", flush=True)
+        super().destroy_node()
 
 
 def main(args=None):

@@ -30,6 +30,7 @@ from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
 from m2h_ros.ros.spin import RunFinished, run_node
 
 TICK_S = 0.05  # how often the node checks start-up and timeouts (answers are handled as they come)
+HELD = -1  # AgentPose.last_action of a step no command moved to
 SETTLE_S = 0.5  # after every consumer is seen, let the endpoints match before step 0
 
 
@@ -136,7 +137,7 @@ class SimNode(Node):
             return
         action = self.commands.pop((episode_id, step), None)
         if action is not None:
-            self.advance(action, hold=False)
+            self.advance(action)
         elif now - self.published_at > self.config.step_timeout_s:
             culprit = ("controller_node" if self.separated == (episode_id, step) else "separator_node")
             raise PipelineError(f"no motion command for {episode_id} step {step} within "
@@ -150,7 +151,7 @@ class SimNode(Node):
         action = self.commands.pop(key, None)
         if action is None:
             self.dropped += 1
-        self.advance(0 if action is None else action, hold=action is None)
+        self.advance(action)
 
     def absent_nodes(self) -> str:
         present = set(self.get_node_names())
@@ -170,11 +171,12 @@ class SimNode(Node):
         self.commands = {k: v for k, v in self.commands.items() if k[0] == self.player.episode.episode_id}
         self.publish(episode_start=True)
 
-    def advance(self, action: int, *, hold: bool) -> None:
-        self.current = self.player.step(action, hold=hold)
-        self.publish(episode_start=False)
+    def advance(self, action: int | None) -> None:
+        """Apply ``action``; None holds the robot where it is (free-running, no command in time)."""
+        self.current = self.player.step(0 if action is None else action, hold=action is None)
+        self.publish(episode_start=False, last_action=HELD if action is None else action)
 
-    def publish(self, *, episode_start: bool) -> None:
+    def publish(self, *, episode_start: bool, last_action: int = HELD) -> None:
         obs, info, episode = self.current.obs, self.current.info, self.player.episode
         stamp = self.get_clock().now().nanoseconds
         step = int(obs["step"][0])
@@ -184,12 +186,13 @@ class SimNode(Node):
         pose = obs["pose"][0]
         self.pub_odom.publish(convert.odometry_msg(pose, height=self.ear_height, stamp_ns=stamp))
         self.pub_pose.publish(convert.agent_pose_msg(pose, node=int(obs["node"][0]), heading=int(obs["heading"][0]),
-                                                     height=self.ear_height, **tag))
+                                                     last_action=last_action, height=self.ear_height, **tag))
         if self.config.camera:
             self.pub_rgb.publish(convert.rgb_msg(obs["rgb"][0], stamp_ns=stamp))
             self.pub_depth.publish(convert.depth_msg(obs["depth"][0, ..., 0], stamp_ns=stamp))
             self.pub_info.publish(convert.camera_info_msg(self.camera_config, stamp_ns=stamp))
-        self.pub_truth.publish(convert.ground_truth_msg(info, 0, sample_rate=self.sample_rate, **tag))
+        self.pub_truth.publish(convert.ground_truth_msg(info, 0, sample_rate=self.sample_rate,
+                                                         last_step=self.current.done, **tag))
         # The mixture last: it is what starts the separator, so everything else of the step is out.
         self.pub_audio.publish(convert.audio_msg(obs["audio"][0], sample_rate=self.sample_rate, **tag))
         self.published_at = time.monotonic()

@@ -160,12 +160,16 @@ def pose_from_odometry(msg: Odometry) -> np.ndarray:
     return np.array([p.x, p.y, yaw % (2 * math.pi)], np.float32)
 
 
-def agent_pose_msg(pose: np.ndarray, *, node: int, heading: int, height: float, episode_id: str, step: int,
-                   stamp_ns: int) -> AgentPose:
+def agent_pose_msg(pose: np.ndarray, *, node: int, heading: int, last_action: int, height: float,
+                   episode_id: str, step: int, stamp_ns: int) -> AgentPose:
     msg = _tag(AgentPose(), episode_id, step, stamp_ns, MAP_FRAME)
     msg.pose = odometry_msg(pose, height=height, stamp_ns=stamp_ns).pose.pose
-    msg.node, msg.heading = int(node), int(heading)
+    msg.node, msg.heading, msg.last_action = int(node), int(heading), int(last_action)
     return msg
+
+
+def position_of(msg: AgentPose) -> np.ndarray:
+    return np.array([msg.pose.position.x, msg.pose.position.y], np.float64)
 
 
 # --- episodes, ground truth, commands, scores ---------------------------------------------------
@@ -182,7 +186,7 @@ def episode_start_from_msg(msg: EpisodeInfo) -> EpisodeStart:
     return EpisodeStart(msg.episode_id, msg.task, msg.target_class, int(msg.max_steps), int(msg.seed))
 
 
-def ground_truth_msg(info: dict, slot: int, *, sample_rate: int, episode_id: str, step: int,
+def ground_truth_msg(info: dict, slot: int, *, sample_rate: int, last_step: bool, episode_id: str, step: int,
                      stamp_ns: int) -> GroundTruth:
     """One slot of the environment's ``info`` -> GroundTruth (what only the evaluator gets)."""
     msg = _tag(GroundTruth(), episode_id, step, stamp_ns, HEAD_FRAME)
@@ -192,6 +196,7 @@ def ground_truth_msg(info: dict, slot: int, *, sample_rate: int, episode_id: str
     msg.target_delay = float(info["target_delay"][slot])
     msg.geodesic_distance = float(info["geodesic_distance"][slot])
     msg.at_target = bool(info["at_target"][slot])
+    msg.last_step = bool(last_step)
     return msg
 
 

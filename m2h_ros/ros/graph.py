@@ -11,7 +11,7 @@ from m2h_ros import topics
 CONSUMERS = {
     "separator_node": (topics.AUDIO, topics.EPISODE),
     "controller_node": (topics.AUDIO, topics.ODOM, topics.EPISODE, topics.REFINED),
-    "evaluator_node": (topics.GROUND_TRUTH, topics.AUDIO, topics.ODOM, topics.EPISODE, topics.REFINED,
+    "evaluator_node": (topics.GROUND_TRUTH, topics.AUDIO, topics.AGENT_POSE, topics.EPISODE, topics.REFINED,
                        topics.COMMAND),
 }
 PIPELINE_TOPICS = tuple(value for name, value in vars(topics).items() if name.isupper())

@@ -1,9 +1,11 @@
-"""Message classes by type name, and the QoS a subscriber should use to hear every publisher."""
+"""Message classes by type name, the QoS a subscriber should use to hear every publisher, and the QoS
+publishers offer (as rosbags records it)."""
 
 import importlib
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from m2h_ros.ros.qos import RECORD
 
@@ -24,3 +26,18 @@ def adapted_qos(node: Node, topic: str) -> QoSProfile:
     if infos and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos):
         qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
     return qos
+
+
+def _qos_time(duration) -> QosTime:
+    sec, nsec = divmod(duration.nanoseconds, 10**9)
+    return QosTime(sec, nsec)
+
+
+def offered_qos(node: Node, topic: str) -> list[Qos]:
+    """The QoS profile of every current publisher of ``topic`` (rmw's enum values are rosbags')."""
+    return [Qos(history=QosHistory(int(q.history)), depth=q.depth, reliability=QosReliability(int(q.reliability)),
+                durability=QosDurability(int(q.durability)), deadline=_qos_time(q.deadline),
+                lifespan=_qos_time(q.lifespan), liveliness=QosLiveliness(int(q.liveliness)),
+                liveliness_lease_duration=_qos_time(q.liveliness_lease_duration),
+                avoid_ros_namespace_conventions=q.avoid_ros_namespace_conventions)
+            for q in (info.qos_profile for info in node.get_publishers_info_by_topic(topic))]

@@ -3,6 +3,7 @@ in-process evaluation, and the faults (a node killed mid-run, bad parameters, ba
 
 from __future__ import annotations
 
+import re
 import signal
 import time
 
@@ -11,6 +12,7 @@ import pytest
 from pipeline_helpers import TINY_SIM, bag_messages, node_args, node_env, run_pipeline, tiny_sets
 
 from m2h_ros import sim_world, topics
+from m2h_ros.core.results import read_results
 from m2h_ros.node_configs import SimConfig
 
 pytestmark = pytest.mark.graph
@@ -69,7 +71,6 @@ def test_scores_equal_the_in_process_run(tiny_run, small_library, small_data_dir
 
     from m2h_ros.agents.registry import make_controller
     from m2h_ros.agents.rollout import evaluate_controller
-    from m2h_ros.core.results import read_results
     from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
     from m2h_ros.models.runner import SeparatorRunner
 
@@ -110,7 +111,8 @@ def test_killed_controller_is_named_and_the_bag_stays_readable(processes, small_
     bag = tmp_path / "bag"
     deadline = time.monotonic() + 120
     while not (tmp_path / "scores" / "results.json").exists():  # the first episode is scored
-        assert time.monotonic() < deadline and procs["sim_node"].poll() is None, "the run never got going"
+        if procs["sim_node"].poll() is not None or time.monotonic() > deadline:
+            pytest.fail(f"the run never got going: {procs['sim_node'].communicate()[1]}")
         time.sleep(0.1)
     procs["controller_node"].send_signal(signal.SIGKILL)
     _, err = procs["sim_node"].communicate(timeout=60)
@@ -166,3 +168,29 @@ time.sleep(0.5)
 pub.publish(convert.audio_msg(samples, sample_rate=16000, episode_id="probe", step=0, stamp_ns=1))
 rclpy.spin(node)
 """
+
+
+def test_free_running_counts_dropped_steps(small_library, small_data_dir, tmp_path):
+    """At a rate the graph cannot follow, missed steps hold the robot, are counted, and still score."""
+    result = run_pipeline(tmp_path, small_data_dir, "--episodes", "1", "--mode", "free_running", "--rate", "200",
+                          "--controller", CONTROLLER, *tiny_sets())
+    assert result.returncode == 0, result.stdout + result.stderr
+    sim_log = (tmp_path / "logs" / "sim_node.log").read_text()
+    dropped = int(re.search(r"(\d+) dropped \(held\)", sim_log).group(1))
+    episode = read_results(tmp_path / "scores" / "results.json")[0]
+    assert len(episode.si_sdr) == episode.steps + 1 == 21
+    assert 0 < dropped == episode.actions.count(-1)
+
+
+def test_replayed_bag_scores_equal_the_live_ones(tiny_run):
+    """m2h-eval's core on the recorded bag: the evaluator's results exactly (same code, same data)."""
+    from m2h_ros.io.replay import replay_bag
+
+    out, _ = tiny_run
+    replay = replay_bag(out / "bag")
+    assert replay.problems == [] and replay.comparison.mismatches == [], \
+        [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
+    live = read_results(out / "scores" / "results.json")
+    assert [r.to_dict() for r in replay.results] == [r.to_dict() for r in live], \
+        (replay.results, live)
+    assert replay.comparison.steps == sum(len(r.si_sdr) for r in live) and replay.comparison.episodes == 2

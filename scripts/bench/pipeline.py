@@ -1,0 +1,80 @@
+#!/usr/bin/env python3
+"""Pipeline throughput: steps per second through the five-process ROS graph vs the same models and
+episodes in-process (one slot, camera on, scores computed), measured in one run, and their ratio;
+plus the separator node's per-step latency. Test episodes, shipped separator, banks cached.
+
+    python scripts/bench/pipeline.py [--episodes 5] [--repeats 2] [--controller random]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import torch  # noqa: E402
+
+from m2h_ros import sim_world  # noqa: E402
+from m2h_ros.agents.registry import make_controller  # noqa: E402
+from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
+from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
+from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
+from m2h_ros.node_configs import SimConfig  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def in_process(config: SimConfig, controller: str) -> float:
+    """Steps per second of evaluate_controller on the sim's episodes, one slot, 1 torch thread."""
+    torch.set_num_threads(1)
+    library = sim_world.sound_library(config.sound_library)
+    episodes = sim_world.sim_episodes(config, library)
+    runner = SeparatorRunner(load_separator(DEFAULT_SEPARATOR_CHECKPOINT), 1)
+    started = time.perf_counter()
+    results = evaluate_controller(make_controller(controller, 1), runner, episodes, library,
+                                  env_config=sim_world.env_config(config), progress=False)
+    return sum(len(r.si_sdr) for r in results) / (time.perf_counter() - started)
+
+
+def through_graph(episodes: int, controller: str) -> tuple[float, str]:
+    """Steps per second the sim reports (first publication to last answer), separator latency line."""
+    with tempfile.TemporaryDirectory() as tmp:
+        result = subprocess.run([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--episodes", str(episodes),
+                                 "--controller", controller, "--out", tmp], capture_output=True, text=True)
+        logs = Path(tmp) / "logs"
+        sim_log = (logs / "sim_node.log").read_text()
+        separator_log = (logs / "separator_node.log").read_text()
+    if result.returncode:
+        raise SystemExit(f"pipeline run failed:\n{result.stdout}\n{result.stderr}\n{sim_log}")
+    rate = float(re.search(r"\(([\d.]+) steps/s\)", sim_log).group(1))
+    latency = re.search(r"latency per step.*", separator_log)
+    return rate, latency.group(0) if latency else "(no latency line)"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--controller", default="random")
+    args = parser.parse_args(argv)
+    config = SimConfig(num_episodes=args.episodes)
+    in_process(config, args.controller)  # warm: RIR banks of these episodes' sources, camera views
+    for repeat in range(args.repeats):
+        load = os.getloadavg()[0]
+        graph, latency = through_graph(args.episodes, args.controller)
+        local = in_process(config, args.controller)
+        print(f"run {repeat + 1}: graph {graph:.1f} steps/s, in-process {local:.1f} steps/s, "
+              f"graph/in-process time ratio {local / graph:.2f} (target <= 1.5; graph target >= 30 steps/s); "
+              f"separator node {latency}; load average {load:.2f}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,129 @@
+"""Replay scoring rate (m2h-eval's core) vs a bare rosbags read of the same bag, and its peak memory on
+a bag 10x longer.
+
+    python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH]
+
+Writes a synthetic recorded run (m2h_ros.io.synthetic: every pipeline topic, camera included, arrays of
+the pipeline's sizes) of EPISODES x (STEPS + 1) observations and one 10x longer, or uses --bag (then
+no memory comparison). Each measurement runs in a fresh process (peak RSS is that process's), the
+cases interleaved REPEATS times; the figures are the median and the min-max spread:
+
+* bare read: rosbags' Reader yields every message's raw bytes (no decoding): the floor of any reader;
+* bare read + decode: the same, deserialising the topics replay needs (rosbags' typestore);
+* replay: :func:`m2h_ros.io.replay.replay_bag` (stream, decode, group, score, compare with live).
+
+Reports steps/s and MB/s (bag bytes / wall time), the replay / bare-read rate ratio (target >= 0.5),
+peak RSS for both bag lengths (target: flat), and the load average before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+def bag_bytes(bag: Path) -> int:
+    return sum(f.stat().st_size for f in bag.glob("*.mcap")) if bag.is_dir() else bag.stat().st_size
+
+
+def child(mode: str, bag: Path) -> dict:
+    """One measurement in this (fresh) process."""
+    from rosbags.rosbag2 import Reader
+
+    from m2h_ros.io.msg_defs import typestore
+    from m2h_ros.io.replay import EXPECTED_TYPES, ReplayConfig, replay_bag
+
+    store = typestore()
+    wanted = {ReplayConfig().topic(name) for name in EXPECTED_TYPES}
+    start = time.perf_counter()
+    steps = 0
+    if mode == "replay":
+        replay = replay_bag(bag)
+        steps = replay.steps_scored
+        assert replay.ok, [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
+    else:
+        with Reader(bag) as reader:
+            for connection, _, data in reader.messages():
+                if mode == "bare+decode" and connection.topic in wanted:
+                    store.deserialize_cdr(data, connection.msgtype)
+                if connection.topic == "/" + "scores/step":
+                    steps += 1
+    seconds = time.perf_counter() - start
+    return {"seconds": seconds, "steps": steps, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def measure(mode: str, bag: Path) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--child", mode, str(bag)], check=True, capture_output=True,
+                         text=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def spread(values: list[float], fmt: str = "{:.1f}") -> str:
+    return f"{fmt.format(statistics.median(values))} ({fmt.format(min(values))}-{fmt.format(max(values))})"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=4)
+    parser.add_argument("--steps", type=int, default=20, help="max steps per episode (near-target: 20)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--bag", type=Path, default=None, help="an existing bag instead of synthetic ones")
+    parser.add_argument("--child", nargs=2, metavar=("MODE", "BAG"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child[0], Path(args.child[1]))))
+        return
+    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} CPUs)")
+    with tempfile.TemporaryDirectory(prefix="bench_replay_") as tmp:
+        bags = {}
+        if args.bag:
+            bags["given"] = args.bag
+        else:
+            from m2h_ros.io.synthetic import SyntheticRun, write_synthetic_run
+
+            for name, episodes in (("short", args.episodes), ("10x", 10 * args.episodes)):
+                bags[name] = Path(tmp) / name
+                start = time.perf_counter()
+                write_synthetic_run(bags[name], SyntheticRun(episodes=episodes, max_steps=args.steps))
+                print(f"wrote {name} bag: {episodes} episodes x {args.steps + 1} observations, "
+                      f"{bag_bytes(bags[name]) / 1e6:.0f} MB in {time.perf_counter() - start:.1f} s")
+        modes = ("bare", "bare+decode", "replay")
+        runs = {(b, m): [] for b in bags for m in modes}
+        for _ in range(args.repeats):
+            for b in bags:
+                for m in modes:
+                    runs[b, m].append(measure(m, bags[b]))
+        for b, bag in bags.items():
+            size = bag_bytes(bag) / 1e6
+            steps = runs[b, "replay"][0]["steps"]
+            print(f"\n{b} bag: {size:.0f} MB, {steps} steps scored")
+            print(f"  {'case':12s} {'steps/s':>22s} {'MB/s':>22s} {'peak RSS MB':>22s}")
+            for m in modes:
+                secs = [r["seconds"] for r in runs[b, m]]
+                print(f"  {m:12s} {spread([steps / s for s in secs]):>22s} {spread([size / s for s in secs]):>22s} "
+                      f"{spread([r['peak_rss_mb'] for r in runs[b, m]]):>22s}")
+            for base in ("bare", "bare+decode"):
+                ratios = [ref["seconds"] / rep["seconds"] for ref, rep in zip(runs[b, base], runs[b, "replay"],
+                                                                              strict=True)]
+                print(f"  replay / {base} rate: {spread(ratios, '{:.2f}')} (per interleaved pair; target vs "
+                      f"bare >= 0.5)")
+        if "10x" in bags:
+            short = statistics.median(r["peak_rss_mb"] for r in runs["short", "replay"])
+            long = statistics.median(r["peak_rss_mb"] for r in runs["10x", "replay"])
+            print(f"\npeak RSS of replay: {short:.0f} MB (short) vs {long:.0f} MB (10x longer): "
+                  f"ratio {long / short:.2f} (flat: ~1)")
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
+if __name__ == "__main__":
+    main()
