@@ -2,15 +2,16 @@
 
     python scripts/bench/acoustics.py [--split val] [--index 0] [--workers 2] [--envs 16] [--sources 2]
 
-Builds into a fresh temporary cache unless --keep-cache is given (then data_dir() is used).
+Builds into a fresh temporary bank folder unless --keep-cache is given (then data_dir() is used);
+the HRTF and the other sources still come from data_dir().
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -45,14 +46,13 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     if args.keep_cache:
-        run(args)
+        run(args, None)
         return
     with tempfile.TemporaryDirectory(prefix="m2h_bench_rir_") as root:
-        os.environ["M2H_DATA_DIR"] = root
-        run(args)
+        run(args, Path(root))
 
 
-def run(args: argparse.Namespace) -> None:
+def run(args: argparse.Namespace, cache_dir: Path | None) -> None:
     scene = load_split(args.split)[args.index]
     config = AcousticsConfig(storage_dtype=args.storage_dtype)
     n_nodes = len(scene.grid.positions)
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> None:
         rt = room_rt60(scene, index)
         print(f"  {room.name}: Eyring RT60 at 1 kHz {rt[k1]:.2f} s (bands {np.round(rt, 2).tolist()})")
 
-    bank = RirBank(scene, config)
+    bank = RirBank(scene, config, cache_dir=cache_dir)
     start = time.perf_counter()
     bank.build(workers=args.workers)
     build_s = time.perf_counter() - start

@@ -6,7 +6,13 @@ Method (per source node, all receiver nodes at once):
   (libroom walls reflect on one side only, the one their outward normal points away from); doors
   are the gaps between wall polygons, lintels are their own polygons; floor and ceiling are one
   rectangle per maximal cell rectangle of each room. Materials are pyroomacoustics' database
-  entries (energy absorption per octave band 125 Hz - 8 kHz). Obstacles are not acoustic.
+  entries (energy absorption per octave band 125 Hz - 8 kHz); each side of a wall has the wall
+  finish of the room it faces.
+* Furnishing (``furnishing_area``): a room's furnishing (scene.FURNISHINGS: upholstery, curtains,
+  cabinets per m^2 of floor) and its furniture boxes are an equivalent absorption area, spread
+  evenly over the room's faces (``_effective_faces``); they add no geometry. ``room_rt60`` (Eyring,
+  with air absorption) uses the very same faces, and ``measured_room_rt60`` checks the simulated
+  decay against it.
 * Early part (heading dependent): libroom's image-source model up to ``ism_max_order`` with
   visibility tested per receiver across the whole non-convex floor plan, so sound reaches other
   rooms through door gaps. Each visible image contributes the KEMAR HRIR of its arrival direction
@@ -41,14 +47,16 @@ from scipy import fft as sfft
 from scipy.signal import butter, sosfiltfilt
 
 from m2h_ros.core.world.hrtf import Hrtf, load_kemar
+from m2h_ros.core.world.scene import FURNISHINGS
 from m2h_ros.errors import ConfigError
 
 #: Bump whenever a change in this module changes the numbers in a bank (invalidates caches).
-VERSION = 1
+VERSION = 2
 N_HEADINGS = 4
 #: Octave-band centres used for absorption, air absorption and the tail (Hz).
 BAND_CENTRES = np.array([125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0])
 _STORAGE_DTYPES = ("float16", "float32")
+_MAX_ABSORPTION = 0.95  # a face absorbing more would be an open window, not a furnished wall
 
 
 @dataclass(frozen=True)
@@ -56,12 +64,14 @@ class AcousticsConfig:
     """Every setting that changes the impulse responses (all of it keys the on-disk cache)."""
 
     sample_rate: int = 16000
-    rir_length: float = 0.5  # s: total length T of every binaural RIR
+    # s: total length T of every binaural RIR; at least every default room's longest band RT60
+    # (125 Hz - 4 kHz), so tails are not cut off (test_room_acoustics checks it).
+    rir_length: float = 1.0
     early_length: float = 0.1  # s: window E of the heading-dependent image-source part
     ism_max_order: int = 3  # image-source reflection order (cost grows ~ walls ** order)
     tail: bool = True  # ray-traced late reverberation
     n_rays: int = 1000
-    scattering: float = 0.3  # diffuse share of every reflection (stands in for unmodelled furniture)
+    scattering: float = 0.3  # diffuse share of every reflection (furniture and clutter scatter)
     receiver_radius: float = 0.5  # m: ray-tracing receiver sphere
     hist_bin: float = 0.004  # s: ray-tracing energy histogram resolution
     wall_transmission_db: float = 40.0  # dB lost per wall crossed by a blocked direct path
@@ -124,7 +134,7 @@ class AcousticsConfig:
         """Short hash of everything that changes results: settings, code version, libraries."""
         payload = json.dumps(
             {"config": asdict(self), "version": VERSION, "pyroomacoustics": pra.__version__,
-             "hrtf": "MIT_KEMAR_normal_pinna"},
+             "hrtf": "MIT_KEMAR_normal_pinna, diffuse-field equalised"},
             sort_keys=True,
         )
         return hashlib.sha256(payload.encode()).hexdigest()[:16]
@@ -180,30 +190,72 @@ def _cell_rectangles(cells: tuple[tuple[int, int], ...]) -> list[tuple[int, int,
     return [tuple(r) for r in rects]
 
 
-def scene_surfaces(scene: Any, config: AcousticsConfig) -> list[libroom.Wall]:
-    """All reflecting polygons of a scene as libroom walls (see the module docstring)."""
+def _room_faces(scene: Any) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Every reflecting polygon as (room it faces, (4, 3) corners, outward normal, absorption (B,))."""
     cell_room = {tuple(map(int, c)): i for i, room in enumerate(scene.rooms) for c in room.cells}
-    surfaces: list[libroom.Wall] = []
+    faces = []
     for wall in scene.walls:
         p0, p1 = np.asarray(wall.p0, float), np.asarray(wall.p1, float)
         along = p1 - p0
         side = np.array([-along[1], along[0]]) / np.linalg.norm(along)  # a unit normal in plan
         corners = np.array([[*p0, wall.z0], [*p1, wall.z0], [*p1, wall.z1], [*p0, wall.z1]])
-        absorption = _material_absorption(wall.material)
         mid = (p0 + p1) / 2
         for sign in (1.0, -1.0):
-            cell = tuple(np.floor(mid + 0.5 * sign * side).astype(int))
-            if cell_room.get(cell, -1) >= 0:  # a room on this side: face it, normal away from it
-                surfaces.append(_polygon(corners, np.array([*(-sign * side), 0.0]), absorption,
-                                         config.scattering))
-    for room in scene.rooms:
+            room = cell_room.get(tuple(np.floor(mid + 0.5 * sign * side).astype(int)), -1)
+            if room >= 0:  # a room on this side: face it, normal away from it, in its finish
+                faces.append((room, corners, np.array([*(-sign * side), 0.0]),
+                              _material_absorption(scene.rooms[room].wall_material)))
+    for index, room in enumerate(scene.rooms):
         floor, ceiling = _material_absorption(room.floor_material), _material_absorption(room.ceiling_material)
         for x0, y0, x1, y1 in _cell_rectangles(room.cells):
             flat = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
-            surfaces.append(_polygon(flat, np.array([0.0, 0.0, -1.0]), floor, config.scattering))
-            surfaces.append(_polygon(flat + [0, 0, scene.height], np.array([0.0, 0.0, 1.0]), ceiling,
-                                     config.scattering))
-    return surfaces
+            faces.append((index, flat, np.array([0.0, 0.0, -1.0]), floor))
+            faces.append((index, flat + [0, 0, scene.height], np.array([0.0, 0.0, 1.0]), ceiling))
+    return faces
+
+
+def _face_area(corners: np.ndarray) -> float:
+    return float(np.linalg.norm(corners[1] - corners[0]) * np.linalg.norm(corners[3] - corners[0]))
+
+
+def furnishing_area(scene: Any, room_index: int) -> np.ndarray:
+    """(B,) equivalent absorption area (m^2) of a room's furnishing and of its furniture boxes.
+
+    Furnishing: sum over its (material, m^2 per m^2 of floor) of floor area x coverage x absorption.
+    A furniture box adds its top and four sides times its material's absorption.
+    """
+    room = scene.rooms[room_index]
+    area = np.zeros(BAND_CENTRES.size)
+    for material, coverage in FURNISHINGS[room.furnishing]:
+        area += room.area * coverage * _material_absorption(material)
+    for box in scene.obstacles:
+        if scene.room_at(((box.xmin + box.xmax) / 2, (box.ymin + box.ymax) / 2)) == room_index:
+            width, depth = box.xmax - box.xmin, box.ymax - box.ymin
+            surface = width * depth + 2 * (width + depth) * box.height
+            area += surface * _material_absorption(box.material)
+    return area
+
+
+def _effective_faces(scene: Any) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """``_room_faces`` with each room's furnishing area spread evenly over the faces of that room.
+
+    A face's absorption a becomes a + A_f / S (A_f the room's furnishing area, S its surface, capped
+    at _MAX_ABSORPTION): the room keeps its total absorption and stays a diffuse field, which is
+    what Eyring's formula assumes, and the ray tracer's decay then follows it.
+    """
+    faces = _room_faces(scene)
+    surface = np.zeros(len(scene.rooms))
+    for room, corners, _, _ in faces:
+        surface[room] += _face_area(corners)
+    extra = np.stack([furnishing_area(scene, r) for r in range(len(scene.rooms))]) / surface[:, None]
+    return [(room, corners, outward, np.minimum(absorption + extra[room], _MAX_ABSORPTION))
+            for room, corners, outward, absorption in faces]
+
+
+def scene_surfaces(scene: Any, config: AcousticsConfig) -> list[libroom.Wall]:
+    """All reflecting polygons of a scene as libroom walls (see the module docstring)."""
+    return [_polygon(corners, outward, absorption, config.scattering)
+            for _, corners, outward, absorption in _effective_faces(scene)]
 
 
 def _walls_crossed(scene: Any, start: np.ndarray, ends: np.ndarray, height: float) -> np.ndarray:
@@ -410,24 +462,30 @@ def mix(renders: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- reverberation time
 
 
-def room_rt60(scene: Any, room_index: int, *, formula: str = "eyring") -> np.ndarray:
-    """(B,) Sabine or Eyring RT60 (s) per octave band (BAND_CENTRES) of one room, doors closed."""
-    room = scene.rooms[room_index]
-    cells = {tuple(map(int, c)) for c in room.cells}
-    area_floor = float(len(cells))
-    volume = area_floor * scene.height
-    perimeter = sum((x + dx, y + dy) not in cells for x, y in cells for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)))
-    wall_area = perimeter * scene.height
-    absorption = (area_floor * _material_absorption(room.floor_material)
-                  + area_floor * _material_absorption(room.ceiling_material)
-                  + wall_area * _material_absorption(room.wall_material))
-    surface = 2 * area_floor + wall_area
+def room_rt60(scene: Any, room_index: int, *, formula: str = "eyring", air: bool = True) -> np.ndarray:
+    """(B,) Sabine or Eyring RT60 (s) per octave band (BAND_CENTRES) of one room.
+
+    From the faces the simulation uses (each wall side with its own material, the furnishing
+    spread over the room); door gaps are open, neither surface nor absorption. ``air`` adds the
+    air's absorption area 4 m V (m: energy attenuation per metre, as the simulation applies it).
+    """
+    if not 0 <= room_index < len(scene.rooms):
+        raise ConfigError(f"room {room_index} is not a room of scene {scene.scene_id}")
+    surface, absorption = 0.0, np.zeros(BAND_CENTRES.size)
+    for room, corners, _, alpha in _effective_faces(scene):
+        if room == room_index:
+            area = _face_area(corners)
+            surface += area
+            absorption += area * alpha
+    volume = scene.rooms[room_index].area * scene.height
     if formula == "sabine":
         equivalent = absorption
     elif formula == "eyring":
         equivalent = -surface * np.log(1 - absorption / surface)
     else:
         raise ConfigError(f"formula must be 'sabine' or 'eyring', got {formula!r}")
+    if air:
+        equivalent = equivalent - 8 * volume * np.log(_air_amplitude(np.ones(()), AcousticsConfig()))
     return 0.161 * volume / equivalent
 
 
@@ -448,3 +506,32 @@ def measure_rt60(rir: np.ndarray, sample_rate: int, *, decay_db: float = 20.0) -
     times = np.arange(start, stop) / sample_rate
     slope = np.polyfit(times, curve[start:stop], 1)[0]
     return float(-60.0 / slope)
+
+
+def measured_room_rt60(scene: Any, room_index: int, config: AcousticsConfig, *, n_sources: int = 2,
+                       n_receivers: int = 3, min_distance: float = 1.5) -> np.ndarray:
+    """(B,) median Schroeder T20 RT60 (s) per octave band over RIRs inside one room.
+
+    The RIRs come from ``simulate_source`` and ``assemble`` (the bank's own code path): up to
+    ``n_sources`` source nodes of the room, each heard at up to ``n_receivers`` nodes of the same
+    room at least ``min_distance`` m away (both ears, heading 0), so the direct sound does not
+    dominate the fit.
+    """
+    nodes = np.flatnonzero(scene.grid.room_of == room_index)
+    if len(nodes) < 2:
+        raise ConfigError(f"room {room_index} of scene {scene.scene_id} has fewer than 2 nodes")
+    positions = np.asarray(scene.grid.positions, float)
+    estimates = []
+    for source in nodes[np.linspace(0, len(nodes) - 1, min(n_sources, len(nodes))).astype(int)]:
+        far = nodes[np.linalg.norm(positions[nodes] - positions[source], axis=1) >= min_distance]
+        if len(far) == 0:
+            continue
+        receivers = far[np.linspace(0, len(far) - 1, min(n_receivers, len(far))).astype(int)]
+        rows = simulate_source(scene, int(source), config)
+        rirs = assemble(np.asarray(rows[receivers]), np.zeros(len(receivers), int), config)
+        estimates.append([[measure_rt60(octave_band(ear, centre, config.sample_rate), config.sample_rate)
+                           for centre in BAND_CENTRES] for rir in rirs for ear in rir])
+    if not estimates:
+        raise ConfigError(f"room {room_index} of scene {scene.scene_id} has no node pair "
+                          f"{min_distance} m apart")
+    return np.median(np.concatenate(estimates), axis=0)

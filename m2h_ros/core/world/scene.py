@@ -25,15 +25,34 @@ import numpy as np
 from m2h_ros.core.world.navgrid import HEADING_STEPS, NavGrid
 from m2h_ros.errors import ConfigError, M2HError
 
-WALL_MATERIALS = ("brickwork", "plasterboard", "wooden_lining", "rough_concrete", "ceramic_tiles",
-                  "limestone_wall", "facing_brick", "curtains_cotton_0.5")
-FLOOR_MATERIALS = ("concrete_floor", "marble_floor", "linoleum_on_concrete", "stage_floor",
-                   "carpet_thin", "carpet_cotton", "carpet_tufted_9.5mm")
-CEILING_MATERIALS = ("ceiling_plasterboard", "ceiling_metal_panel", "ceiling_fissured_tile",
-                     "ceiling_perforated_gypsum_board")
+# Residential surfaces (pyroomacoustics database names): hard walls and ceilings, wooden, tiled or
+# carpeted floors. Most of a furnished home's absorption is its furnishing (FURNISHINGS), not its
+# shell. The list lengths fix how many random draws a scene takes, so keep them (8, 7, 4).
+WALL_MATERIALS = ("plasterboard", "rough_lime_wash", "wooden_lining", "brickwork", "limestone_wall",
+                  "brick_wall_rough", "smooth_brickwork_10mm_pointing", "ceramic_tiles")
+FLOOR_MATERIALS = ("audience_floor", "stage_floor", "linoleum_on_concrete", "marble_floor",
+                   "carpet_thin", "carpet_soft_10mm", "carpet_rubber_5mm")
+# Repeats weight the draw: most homes have plain plasterboard ceilings.
+CEILING_MATERIALS = ("ceiling_plasterboard", "ceiling_plasterboard", "ceiling_plasterboard", "wood_1.6cm")
 OBSTACLE_MATERIALS = ("wood_16mm", "plywood_thin", "chairs_wooden", "chairs_medium_upholstered")
+# Furnishing of a room: (pyroomacoustics material, m^2 of it per m^2 of floor). Acoustically it is
+# an equivalent absorption area (see acoustics.room_absorption); it has no geometry. Upholstery
+# stands for sofas, armchairs and beds, curtains for window drapes, wood for cabinets and shelves.
+FURNISHINGS: dict[str, tuple[tuple[str, float], ...]] = {
+    "bare": (),
+    "sparse": (("wood_16mm", 0.3), ("chairs_upholstered_moderate", 0.15), ("curtains_fabric", 0.15)),
+    "kitchen": (("wood_16mm", 0.5), ("chairs_upholstered_moderate", 0.15), ("curtains_fabric", 0.15)),
+    "dining": (("chairs_upholstered_moderate", 0.2), ("curtains_fabric", 0.15), ("wood_16mm", 0.3)),
+    "living": (("chairs_heavy_upholstered", 0.25), ("curtains_fabric_folded", 0.15), ("wood_16mm", 0.2)),
+    "bedroom": (("chairs_heavy_upholstered", 0.3), ("curtains_velvet", 0.15), ("wood_16mm", 0.2)),
+    "study": (("chairs_upholstered_cloth", 0.2), ("curtains_fabric", 0.15), ("wood_16mm", 0.5)),
+}
+# Draw weights of the furnishings for generated rooms (a few sparse, live rooms); "bare" is for hand-made scenes.
+FURNISHING_WEIGHTS = {"sparse": 0.05, "kitchen": 0.15, "dining": 0.15, "living": 0.25, "bedroom": 0.25,
+                      "study": 0.15}
 # Material name (as pyroomacoustics.Material knows it) -> the surface it is used for.
 MATERIALS: dict[str, str] = {
+    **{name: "furnishing" for items in FURNISHINGS.values() for name, _ in items},  # shared: later wins
     **{name: "wall" for name in WALL_MATERIALS},
     **{name: "floor" for name in FLOOR_MATERIALS},
     **{name: "ceiling" for name in CEILING_MATERIALS},
@@ -51,7 +70,7 @@ SCENE_SPLITS: dict[str, tuple[int, ...]] = {
     "test": tuple(range(2000, 2003)),
 }
 
-_FINGERPRINT_VERSION = 1
+_FINGERPRINT_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -62,6 +81,7 @@ class Room:
     floor_material: str
     ceiling_material: str
     color: tuple[float, float, float]
+    furnishing: str = "bare"  # a key of FURNISHINGS
 
     @property
     def area(self) -> float:
@@ -125,7 +145,7 @@ class Scene:
             "version": _FINGERPRINT_VERSION,
             "height": _r(self.height),
             "rooms": [[list(map(list, r.cells)), r.wall_material, r.floor_material,
-                       r.ceiling_material] for r in self.rooms],
+                       r.ceiling_material, r.furnishing] for r in self.rooms],
             "walls": [[_r(*w.p0), _r(*w.p1), _r(w.z0), _r(w.z1), w.material, list(w.rooms)]
                       for w in self.walls],
             "obstacles": [[_r(o.xmin, o.ymin, o.xmax, o.ymax, o.height), o.material]
@@ -263,18 +283,24 @@ def _build_scene(rng: np.random.Generator, preset: _Preset, labels: np.ndarray, 
     surfaces = [(WALL_MATERIALS[wall_mats[i]], FLOOR_MATERIALS[floor_mats[i]],
                  CEILING_MATERIALS[ceiling_mats[i]], ROOM_COLORS[colors[i]]) for i in range(n_rooms)]
     obstacles = _place_obstacles(rng, preset, labels, doors)
+    # Drawn last, so the floor plan and the furniture boxes do not depend on the furnishing list.
+    names = sorted(FURNISHING_WEIGHTS)
+    weights = np.array([FURNISHING_WEIGHTS[n] for n in names])
+    furnishings = [names[i] for i in rng.choice(len(names), size=n_rooms, p=weights / weights.sum())]
     return build_scene(labels, doors=doors, obstacles=obstacles, surfaces=surfaces, seed=seed,
-                       preset=preset_name, scene_id=scene_id)
+                       preset=preset_name, scene_id=scene_id, furnishings=furnishings)
 
 
 def build_scene(labels, *, doors=(), obstacles: tuple[Obstacle, ...] = (), surfaces=None,
-                scene_id: str = "custom", seed: int = 0, preset: str = "custom") -> Scene:
+                furnishings=None, scene_id: str = "custom", seed: int = 0,
+                preset: str = "custom") -> Scene:
     """Assemble a scene from an explicit plan (tests, hand-made layouts).
 
     ``labels``: (W, H) int array, room index of each floor cell (-1 = outside). ``doors``: pairs of
     4-adjacent cells ((x, y), (x', y')) in different rooms. ``obstacles`` occupy the cell holding
     their (xmin, ymin) corner. ``surfaces``: per room (wall, floor, ceiling material, colour);
-    default: the i-th entry of each material list and of ROOM_COLORS.
+    default: the i-th entry of each material list and of ROOM_COLORS. ``furnishings``: per room a
+    key of FURNISHINGS (default "bare": only the surfaces absorb).
     """
     labels = np.array(labels, dtype=np.int64)
     if labels.ndim != 2 or labels.max() < 0:
@@ -294,11 +320,15 @@ def build_scene(labels, *, doors=(), obstacles: tuple[Obstacle, ...] = (), surfa
                     for i in range(n_rooms)]
     if len(surfaces) != n_rooms:
         raise ConfigError(f"surfaces has {len(surfaces)} entries for {n_rooms} rooms")
+    furnishings = ["bare"] * n_rooms if furnishings is None else list(furnishings)
+    if len(furnishings) != n_rooms or not set(furnishings) <= set(FURNISHINGS):
+        raise ConfigError(f"furnishings must name one of {sorted(FURNISHINGS)} per room "
+                          f"({n_rooms}), got {furnishings!r}")
     rooms = tuple(
         Room(name=f"room{i}", cells=tuple(sorted((int(x), int(y)) for x, y in np.argwhere(labels == i))),
              wall_material=wall, floor_material=floor, ceiling_material=ceiling,
-             color=tuple(float(c) for c in color))
-        for i, (wall, floor, ceiling, color) in enumerate(surfaces))
+             color=tuple(float(c) for c in color), furnishing=furnishing)
+        for i, ((wall, floor, ceiling, color), furnishing) in enumerate(zip(surfaces, furnishings)))
     blocked = {(int(np.floor(o.xmin)), int(np.floor(o.ymin))) for o in obstacles}
     free = [(int(x), int(y)) for x, y in np.argwhere(labels >= 0) if (x, y) not in blocked]
     free.sort(key=lambda c: (c[1], c[0]))   # nodes in row-major order
@@ -310,6 +340,20 @@ def build_scene(labels, *, doors=(), obstacles: tuple[Obstacle, ...] = (), surfa
     return Scene(scene_id=scene_id, seed=seed, height=CEILING_HEIGHT, rooms=rooms, walls=walls,
                  obstacles=tuple(obstacles), grid=grid, preset=preset, door_height=DOOR_HEIGHT,
                  size=labels.shape)
+
+
+def isolated_room(scene: Scene, room_index: int) -> Scene:
+    """One room of ``scene`` on its own (doors shut, neighbours gone), with its surfaces,
+    furnishing and furniture boxes: the closed room that Sabine's and Eyring's formulas describe."""
+    if not 0 <= room_index < len(scene.rooms):
+        raise ConfigError(f"room {room_index} is not a room of scene {scene.scene_id}")
+    room = scene.rooms[room_index]
+    labels = np.where(scene.cell_room == room_index, 0, -1)
+    boxes = tuple(o for o in scene.obstacles if scene.room_at((o.xmin, o.ymin)) == room_index)
+    return build_scene(labels, obstacles=boxes,
+                       surfaces=[(room.wall_material, room.floor_material, room.ceiling_material, room.color)],
+                       furnishings=[room.furnishing], scene_id=f"{scene.scene_id}_{room.name}",
+                       seed=scene.seed, preset=scene.preset)
 
 
 def _crossing_rule(labels: np.ndarray, doors: set):

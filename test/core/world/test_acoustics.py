@@ -131,10 +131,13 @@ def test_direct_energy_falls_with_distance(two_rooms):
 
 def test_wall_between_rooms_attenuates(two_rooms):
     scene, rows = two_rooms
-    same_room = _rir(scene, rows, (0.5, 0.5), heading=0)  # 4 m away, same room
-    behind_wall = _rir(scene, rows, (8.5, 0.5), heading=0)  # 4 m away, behind the wall at x = 6
+    # The first 0.1 s: direct sound and early reflections. The late diffuse field of two rooms
+    # coupled by a door is nearly the same on both sides, and a 1 s RIR holds much of it.
+    early = slice(0, CONFIG.n_early)
+    same_room = _rir(scene, rows, (0.5, 0.5), heading=0)[:, early]  # 4 m away, same room
+    behind_wall = _rir(scene, rows, (8.5, 0.5), heading=0)[:, early]  # 4 m away, behind the wall at x = 6
     level = 10 * np.log10((behind_wall**2).sum() / (same_room**2).sum())
-    assert level < -6.0
+    assert level < -6.0, level
 
 
 def test_sound_reaches_the_other_room_through_the_door():

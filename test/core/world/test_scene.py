@@ -1,12 +1,14 @@
 """Procedural scenes and the navigation grid: connectivity, geodesics, walls vs doors, determinism."""
 
+import dataclasses
 import time
 
 import numpy as np
 import pytest
 
 from m2h_ros.core.world.navgrid import HEADING_STEPS, NavGrid, turn_left, turn_right
-from m2h_ros.core.world.scene import (MATERIALS, SCENE_SPLITS, Scene, cells_outline, generate_scene,
+from m2h_ros.core.world.scene import (FURNISHING_WEIGHTS, FURNISHINGS, MATERIALS, SCENE_SPLITS, Scene,
+                                      build_scene, cells_outline, generate_scene, isolated_room,
                                       load_split)
 from m2h_ros.errors import ConfigError, M2HError
 
@@ -149,11 +151,37 @@ def test_determinism_and_fingerprint_sensitivity():
     assert len(fingerprints) == 10
     assert generate_scene(5, preset="small").fingerprint() != a.fingerprint()
     # A one-material change moves the fingerprint.
-    import dataclasses
     changed = dataclasses.replace(a, rooms=(dataclasses.replace(a.rooms[0], floor_material="marble_floor"
                                   if a.rooms[0].floor_material != "marble_floor" else "concrete_floor"),)
                                   + a.rooms[1:])
     assert changed.fingerprint() != a.fingerprint()
+    other = "bare" if a.rooms[0].furnishing != "bare" else "living"
+    refurnished = dataclasses.replace(a, rooms=(dataclasses.replace(a.rooms[0], furnishing=other),)
+                                      + a.rooms[1:])
+    assert refurnished.fingerprint() != a.fingerprint()
+
+
+def test_rooms_are_furnished(scenes):
+    used = [room.furnishing for scene in scenes for room in scene.rooms]
+    assert set(used) <= set(FURNISHING_WEIGHTS) and len(set(used)) >= 3
+    assert all(FURNISHINGS[name] for name in used)  # generated rooms are never bare
+    labels = np.zeros((3, 2), dtype=int)
+    assert build_scene(labels).rooms[0].furnishing == "bare"
+    with pytest.raises(ConfigError, match="furnishings"):
+        build_scene(labels, furnishings=["palace"])
+
+
+def test_isolated_room_keeps_surfaces_furnishing_and_boxes(scenes):
+    scene = scenes[0]
+    boxed = next(i for i, room in enumerate(scene.rooms)
+                 if any(scene.room_at((o.xmin, o.ymin)) == i for o in scene.obstacles))
+    room = isolated_room(scene, boxed)
+    assert len(room.rooms) == 1 and room.doors == ()
+    assert room.rooms[0].cells == scene.rooms[boxed].cells
+    assert dataclasses.replace(room.rooms[0], name=scene.rooms[boxed].name) == scene.rooms[boxed]
+    assert room.obstacles == tuple(o for o in scene.obstacles if scene.room_at((o.xmin, o.ymin)) == boxed)
+    with pytest.raises(ConfigError):
+        isolated_room(scene, len(scene.rooms))
 
 
 def test_small_preset_is_fast_and_small():
