@@ -68,7 +68,9 @@ class SeparatorNodeConfig(Config):
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
-    policy: str = setting("stand_in_place", "which controller chooses the actions", choices=CONTROLLER_NAMES)
+    policy: str = setting("proximity_prior", "which controller chooses the actions (default: the best "
+                          "training-free baseline in docs/results/baselines_near_target until learned "
+                          "policies are shipped)", choices=CONTROLLER_NAMES)
     checkpoint: str = setting("", "policy checkpoint for learned controllers; empty: shipped default")
     seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
 
