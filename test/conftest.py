@@ -11,6 +11,9 @@ from pathlib import Path
 
 import pytest
 
+# Before any test imports torch: idle OpenMP threads sleep instead of spinning on the shared cores.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))  # for the shared helpers module
 
