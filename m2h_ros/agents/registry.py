@@ -17,8 +17,14 @@ TRAINING_FREE = {
     "doa": "m2h_ros.agents.baselines:DirectionOfArrival",
     "proximity_prior": "m2h_ros.agents.baselines:ProximityPrior",
 }
-# Learned controllers of the paper; they arrive with the learned-controllers issue.
-LEARNED: dict[str, str] = {}
+# name -> "module:Class" of the learned controllers (m2h_ros/agents/learned.py); they take ``checkpoint``.
+LEARNED = {
+    "move2hear": "m2h_ros.agents.learned:Move2Hear",
+    "move2hear_quality": "m2h_ros.agents.learned:Move2HearQuality",
+    "move2hear_navigation": "m2h_ros.agents.learned:Move2HearNavigation",
+    "novelty": "m2h_ros.agents.learned:Novelty",
+    "av_navigator": "m2h_ros.agents.learned:AVNavigator",
+}
 CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED)
 
 

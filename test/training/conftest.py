@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.sounds.sources import sources_dir
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.training.separator_data import SeparatorDataConfig, SeparatorDataset, separator_dataset
@@ -19,16 +19,20 @@ def training_data_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("training_data")
 
 
+# The HRTF comes from the fetched sound sources of the real data dir, which _data_dir hides.
+SOUND_SOURCES = sources_dir()
+
+
 @pytest.fixture(autouse=True)
 def _data_dir(monkeypatch, training_data_dir):
     monkeypatch.setenv("M2H_DATA_DIR", str(training_data_dir))
+    monkeypatch.setenv("M2H_SOUND_SOURCES", str(SOUND_SOURCES))
 
 
 @pytest.fixture(scope="session")
-def fast_env() -> EnvConfig:
-    """Short RIRs, image sources up to order 2, no tail: a small scene's source node in ~0.02 s."""
-    return EnvConfig(camera=False, acoustics=AcousticsConfig(rir_length=0.25, early_length=0.064,
-                                                             ism_max_order=2, tail=False))
+def fast_env(fast_acoustics) -> EnvConfig:
+    """Fast acoustics (test/conftest.py), no camera: a small scene's source node in ~0.02 s."""
+    return EnvConfig(camera=False, acoustics=fast_acoustics)
 
 
 @pytest.fixture(scope="session")
@@ -52,3 +56,16 @@ def small_train_set(small_train_data, folder_library, training_data_dir) -> Sepa
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("M2H_DATA_DIR", str(training_data_dir))
         return separator_dataset(small_train_data, folder_library, n_envs=4, progress=False)
+
+
+@pytest.fixture(scope="session")
+def separator_path(tmp_path_factory) -> Path:
+    """An untrained tiny separator checkpoint (widths 8..16), enough to drive policy training."""
+    import torch
+
+    from m2h_ros.models.checkpoint import save_separator
+    from m2h_ros.models.separator import Separator, SeparatorConfig
+
+    torch.manual_seed(0)
+    separator = Separator(SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)).eval()
+    return save_separator(tmp_path_factory.mktemp("separator") / "tiny.pt", separator, classes=("speech", "music"))

@@ -313,6 +313,29 @@ class BatchEnv:
         self._scenes.clear()
         self._rir_spectra.clear()
 
+    def state(self) -> dict[str, Any]:
+        """Where every slot stands (plain types), for :meth:`restore` in a new env over the same
+        episode list: training checkpoints resume exactly. The current observation is not part of
+        it (re-rendering would draw the microphone noise again): keep the one ``step`` returned."""
+        if (self._episode_index < 0).any():
+            raise M2HError("BatchEnv.state(): a slot plays an episode that is not in the list")
+        return {"n_envs": self.n_envs, "n_episodes": len(self.episodes), "seed": self._seed,
+                "started": self._started.tolist(), "episode_index": self._episode_index.tolist(),
+                "node": self._node.tolist(), "heading": self._heading.tolist(), "step": self._step.tolist(),
+                "done": self._done.tolist(), "rng": [rng.bit_generator.state for rng in self._rngs]}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Put every slot where :meth:`state` found it (pose caches start empty: same numbers)."""
+        if (state["n_envs"], state["n_episodes"]) != (self.n_envs, len(self.episodes)):
+            raise ConfigError(f"BatchEnv.restore(): state of {state['n_envs']} slots over {state['n_episodes']} "
+                              f"episodes, this env has {self.n_envs} over {len(self.episodes)}")
+        self._seed = int(state["seed"])
+        for slot in range(self.n_envs):
+            self._start(slot, int(state["episode_index"][slot]))
+            self._rngs[slot].bit_generator.state = state["rng"][slot]
+        for name in ("started", "node", "heading", "step", "done"):
+            getattr(self, f"_{name}")[:] = state[name]
+
     # ------------------------------------------------------------------ internals
     def _episode_for(self, slot: int, count: int) -> int:
         """Index of the ``count``-th episode of ``slot``: slots take turns along a seeded order."""

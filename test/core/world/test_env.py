@@ -287,3 +287,25 @@ def test_target_delay_is_where_the_direct_sound_lands(near_episodes, small_libra
         distance = np.linalg.norm(grid.positions[episode.target_node] - grid.positions[episode.start_node])
         assert info["target_delay"] == pytest.approx(
             max(distance, acoustics.min_distance) / acoustics.speed_of_sound * acoustics.sample_rate)
+
+
+def test_state_restores_every_slot_in_a_new_env(near_episodes, small_library, rir_cache, config):
+    noisy = dataclasses.replace(config, mic_noise=0.1, camera=False)
+    actions = np.random.default_rng(3).integers(1, 4, size=(30, 3))
+    env = BatchEnv(near_episodes, small_library, n_envs=3, config=noisy, rir_cache_dir=rir_cache)
+    env.reset()
+    for a in actions[:25]:  # past the first episodes' ends: the slots have moved on in the order
+        env.step(a)
+    state = env.state()
+    twin = BatchEnv(near_episodes, small_library, n_envs=3, config=noisy, rir_cache_dir=rir_cache)
+    twin.restore(state)
+    assert twin.state() == state
+    for a in actions[25:]:
+        ours, twin_step = env.step(a), twin.step(a)
+        np.testing.assert_array_equal(ours[0]["audio"], twin_step[0]["audio"])  # same noise draws too
+        np.testing.assert_array_equal(ours[1], twin_step[1])
+    assert [e.episode_id for e in env.current_episodes] == [e.episode_id for e in twin.current_episodes]
+    env.close()
+    twin.close()
+    with pytest.raises(ConfigError, match="restore"):
+        BatchEnv(near_episodes, small_library, n_envs=2, config=noisy, rir_cache_dir=rir_cache).restore(state)

@@ -1,0 +1,192 @@
+"""The learned controllers (policies trained by ``m2h_ros.training.ppo``) behind the controller interface.
+
+* ``move2hear_quality`` (pi^Q, paper Sec. 4): moves to improve the separation; rewarded by the
+  step-to-step decrease of the refined estimate's NMSE. Three actions (no Stop).
+* ``move2hear_navigation`` (pi^N + Stop, Sec. 4 far-target): navigates to the target and stops,
+  on the navigation reward. Four actions.
+* ``move2hear`` (the paper's Move2Hear): near-target pi^Q throughout; far-target pi^N until step
+  ``switch_step`` (T^N, default 80 of 100 as the original; choose it on the validation split),
+  then pi^Q with a fresh GRU state (as the original's policy switch).
+* ``novelty`` (Sec. 5 baselines): PPO on a count-based exploration reward 1 / sqrt(n) per visited
+  node, the same network as pi^Q.
+* ``av_navigator`` (Sec. 5, after Chen et al. 2020): PPO on the mixed binaural spectrogram + the
+  target-class plane and RGB, with the navigation reward (+ Stop).
+
+Gan et al. (supervised location / Stop predictors, a depth occupancy map and a planner) is not here yet.
+
+Checkpoints: ``checkpoint`` names a policy file (``policy.pt`` of a training run); empty means the
+shipped one in ``m2h_ros/models/default/policy_<kind>.pt``. For ``move2hear`` it names a directory
+holding ``policy_quality.pt`` and ``policy_navigation.pt`` (default: the shipped ones). A missing
+file is a CheckpointError that says which training command writes it. Pair a pi^Q policy with the
+separator trained alongside it (``separator.pt`` beside its ``policy.pt``): f^R was trained with it.
+
+Actions are sampled from the policy's distribution (the original evaluates sampled actions) with the
+slot's per-episode generator; ``greedy=True`` takes the most likely action instead.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import torch
+
+from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
+from m2h_ros.core.sounds.library import TARGET_CATEGORIES
+from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.models.policy import LoadedPolicy, load_policy, policy_inputs
+from m2h_ros.paths import PACKAGE_DIR
+
+DEFAULT_POLICY_DIR = PACKAGE_DIR / "models" / "default"
+DEFAULT_SWITCH_STEP = 80
+
+
+def default_policy_path(kind: str) -> Path:
+    return DEFAULT_POLICY_DIR / f"policy_{kind}.pt"
+
+
+def train_command(kind: str) -> str:
+    return (f"python scripts/train_policy.py --kind {kind} --out runs/policy_{kind}, then copy "
+            f"runs/policy_{kind}/policy.pt to {default_policy_path(kind)}")
+
+
+def load_learned(kind: str, path: str | Path = "") -> LoadedPolicy:
+    """The ``kind`` policy at ``path`` (empty: the shipped one); a missing file names the command."""
+    path = Path(path) if str(path) else default_policy_path(kind)
+    if not path.is_file():
+        raise CheckpointError(f"{kind} policy checkpoint {path} not found; train it with `{train_command(kind)}`")
+    return load_policy(path, policy_kind=kind)
+
+
+class PolicyDriver:
+    """One policy network run step by step over slots, each with its own GRU state."""
+
+    def __init__(self, loaded: LoadedPolicy, n_slots: int) -> None:
+        self.loaded, self.net = loaded, loaded.net
+        self.device = self.net.actor.weight.device
+        self.hidden = self.net.initial_hidden(n_slots)
+        self.starts = np.ones(n_slots, bool)
+        self.env_actions = loaded.config.env_actions()
+
+    def reset(self, slot: int) -> None:
+        self.starts[slot] = True
+
+    def probabilities(self, obs: ControllerObservation, target_class: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(R, A) action probabilities of slots ``rows`` (``obs`` holds those rows); advances their state."""
+        inputs = policy_inputs(self.loaded.config, separated_binaural=obs.separated_binaural, monaural=obs.monaural,
+                               refined=obs.refined, audio=obs.audio, target_class=target_class, rgb=obs.rgb,
+                               stft_config=self.loaded.stft)
+        index = torch.as_tensor(rows, device=self.device)
+        with torch.inference_mode():
+            out = self.net.step(inputs.to(self.device), self.hidden[index],
+                                torch.as_tensor(self.starts[rows], device=self.device))
+            self.hidden[index] = out.hidden
+        self.starts[rows] = False
+        return torch.softmax(out.logits.double(), dim=-1).cpu().numpy()
+
+
+class LearnedController(Controller):
+    """Base of the learned controllers: per-slot target class, sampled or greedy actions."""
+
+    def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False) -> None:
+        super().__init__(n_slots, seed=seed)
+        if not isinstance(greedy, bool):
+            raise ConfigError(f"greedy={greedy!r} must be a bool")
+        self.greedy = greedy
+        self.target_class = np.zeros(self.n_slots, np.int64)
+        self.drivers = self._drivers(checkpoint)
+        self.uses_camera = any(d.loaded.config.camera for d in self.drivers)
+
+    @abstractmethod
+    def _drivers(self, checkpoint: str) -> list[PolicyDriver]:
+        """Load the policies this controller runs."""
+
+    def reset(self, slot: int, start: EpisodeStart) -> None:
+        super().reset(slot, start)
+        if start.target_class not in TARGET_CATEGORIES:
+            raise ConfigError(f"target class {start.target_class!r} is not one of {TARGET_CATEGORIES}")
+        self.target_class[slot] = TARGET_CATEGORIES.index(start.target_class)
+        for driver in self.drivers:
+            driver.reset(slot)
+
+    def _choose(self, driver: PolicyDriver, obs: ControllerObservation, rows: np.ndarray) -> np.ndarray:
+        """Environment actions of slots ``rows`` from ``driver`` (obs: all slots)."""
+        probs = driver.probabilities(obs.rows(rows), self.target_class[rows], rows)
+        if self.greedy:
+            picks = probs.argmax(axis=1)
+        else:
+            draws = np.array([self.rngs[slot].random() for slot in rows.tolist()])
+            picks = np.minimum((probs.cumsum(axis=1) < draws[:, None]).sum(axis=1), probs.shape[1] - 1)
+        return driver.env_actions[picks]
+
+
+class SinglePolicy(LearnedController):
+    """A controller that is one trained policy of kind ``kind``."""
+
+    kind: ClassVar[str]
+
+    def _drivers(self, checkpoint: str) -> list[PolicyDriver]:
+        return [PolicyDriver(load_learned(self.kind, checkpoint), self.n_slots)]
+
+    def _act(self, obs: ControllerObservation) -> np.ndarray:
+        return self._choose(self.drivers[0], obs, np.arange(self.n_slots))
+
+
+class Move2HearQuality(SinglePolicy):
+    name, kind = "move2hear_quality", "quality"
+    summary = "Move2Hear pi^Q: moves to improve the refined estimate (paper Sec. 4, near-target)"
+
+
+class Move2HearNavigation(SinglePolicy):
+    name, kind = "move2hear_navigation", "navigation"
+    summary = "Move2Hear pi^N + Stop: navigates to the target and stops (paper Sec. 4, far-target)"
+
+
+class Novelty(SinglePolicy):
+    name, kind = "novelty", "novelty"
+    summary = "PPO on a count-based exploration reward 1/sqrt(n) per visited node (paper Sec. 5)"
+
+
+class AVNavigator(SinglePolicy):
+    name, kind = "av_navigator", "av_navigator"
+    summary = "PPO on the mixed binaural spectrogram + class and RGB, navigation reward (paper Sec. 5)"
+
+
+class Move2Hear(LearnedController):
+    """The paper's Move2Hear: pi^Q near-target; far-target pi^N (+ Stop) until step ``switch_step``, then pi^Q."""
+
+    name = "move2hear"
+    summary = "Move2Hear: pi^Q near-target; pi^N until step T^N, then pi^Q far-target (paper Sec. 4)"
+
+    def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False,
+                 switch_step: int = DEFAULT_SWITCH_STEP) -> None:
+        if isinstance(switch_step, bool) or not isinstance(switch_step, (int, np.integer)) or switch_step < 0:
+            raise ConfigError(f"switch_step={switch_step!r} must be a non-negative int")
+        self.switch_step = int(switch_step)
+        super().__init__(n_slots, seed=seed, checkpoint=checkpoint, greedy=greedy)
+        self.far = np.zeros(self.n_slots, bool)
+
+    def _drivers(self, checkpoint: str) -> list[PolicyDriver]:
+        folder = Path(checkpoint) if checkpoint else DEFAULT_POLICY_DIR
+        if checkpoint and not folder.is_dir():
+            raise CheckpointError(f"move2hear takes a directory holding policy_quality.pt and policy_navigation.pt, "
+                                  f"got {folder}")
+        self.quality, self.navigation = (PolicyDriver(load_learned(kind, folder / f"policy_{kind}.pt"), self.n_slots)
+                                         for kind in ("quality", "navigation"))
+        return [self.quality, self.navigation]
+
+    def reset(self, slot: int, start: EpisodeStart) -> None:
+        super().reset(slot, start)
+        self.far[slot] = start.task == "far_target"
+
+    def _act(self, obs: ControllerObservation) -> np.ndarray:
+        # pi^Q's GRU state starts fresh when it first acts (reset() marks it): at step 0 near-target,
+        # at the switch step far-target.
+        navigating = self.far & (obs.step < self.switch_step)
+        actions = np.empty(self.n_slots, np.int64)
+        for driver, rows in ((self.navigation, np.flatnonzero(navigating)), (self.quality, np.flatnonzero(~navigating))):
+            if len(rows):
+                actions[rows] = self._choose(driver, obs, rows)
+        return actions

@@ -1,0 +1,752 @@
+"""PPO and DD-PPO training of the learned controllers, in-process on ``BatchEnv``; one readable loop.
+
+    python scripts/train_policy.py --kind quality|navigation|novelty|av_navigator [--updates N] [--out DIR]
+    torchrun --nproc_per_node 2 scripts/train_policy.py ...       # DD-PPO: 2 workers, gradients all-reduced
+
+One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
+
+1. Rollout: ``n_steps`` steps of ``n_envs`` slots. Per step the passive separator runs batched over
+   the slots (``SeparatorRunner``: f^B, f^M frozen, f^R with one memory per slot), the policy sees
+   exactly what a controller sees (``agents.rollout.controller_observation`` -> ``policy_inputs``)
+   and samples an action; the env steps (same-step auto-reset; the terminal observation is separated
+   too, continuing its episode's memory, so the last reward sees the episode's final estimate).
+2. Rewards by kind: ``quality`` (Move2Hear pi^Q) NMSE_t - NMSE_{t+1} of the refined estimate against
+   the ground-truth monaural magnitude (NMSE = mean squared error / mean squared target), plus
+   ``-final_nmse_weight`` x NMSE at the episode's last step (the original code's formulation; it adds
+   that term one step early because Habitat's auto-reset hides the last observation, here it lands on
+   the last step itself); ``navigation`` (pi^N + Stop, AV Navigator) the env's reward (+10 for Stop
+   at the target, +-0.25 per metre of geodesic distance, -0.01 per step); ``novelty`` 1 / sqrt(n)
+   with n the visits (this one included) of the node the step arrives at in this episode.
+3. GAE(gamma, lambda) advantages, normalised (over all workers with DD-PPO); an episode end is
+   terminal (no bootstrap), as in the original.
+4. ``ppo_epochs`` passes of ``n_minibatches`` minibatches (whole slot sequences, the GRU re-run from
+   the rollout's first hidden state): clipped surrogate x action_coef + clipped value loss x
+   value_coef - entropy x entropy_coef; Adam, gradient norm clipped; lr and clip decay linearly.
+5. f^R (``train_refiner``, default for ``quality`` only): ``refiner_epochs`` passes of L1 between
+   f^R(f^M estimate, stored memory) and the ground-truth magnitude, Adam ``refiner_lr`` (the
+   original's lr_sep 5e-4), as the original's ``update_sep`` (ppo_epoch passes: 4); f^R's BatchNorm keeps its pretrained
+   statistics (eval mode) so acting and training compute the same function. The trained separator
+   is written beside the policy (``separator.pt``): pair them at evaluation.
+
+DD-PPO (``torchrun``; gloo on CPU, nccl on CUDA): every worker has its own environments (env seed +
+rank: its own episode order) and sampling stream; weights start equal (broadcast from rank 0);
+gradients of the policy and of f^R are all-reduced (averaged) before clipping and the Adam step, so
+all workers keep identical weights. (The original's straggler preemption is not needed here: all
+workers step the same number of slots per update.)
+
+Outputs in ``out_dir``: ``policy.pt`` (self-describing, kind ``m2h_policy``), ``separator.pt``
+(when f^R trains), ``log.csv`` (one row per update), ``curve.png``, ``config.json``, and
+``resume.pt`` (``resume.rank<r>.pt`` per DD-PPO worker): everything the loop holds (weights,
+optimisers, random streams, env slots, the current observation, separator memory, GRU state), so a
+run that stops at a checkpoint and restarts continues with exactly the numbers it would have had.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+# Spinning OpenMP workers collapse torch's speed on a shared machine (see pretrain_separator).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import torch.distributed as dist  # noqa: E402
+import torch.nn.functional as F  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from m2h_ros.agents.rollout import controller_observation  # noqa: E402
+from m2h_ros.core.audio.stft import stft, to_slices  # noqa: E402
+from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
+from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
+from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
+from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
+from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
+from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_inputs, save_policy  # noqa: E402
+from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
+from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
+
+
+@dataclass(frozen=True)
+class KindSpec:
+    """What a policy kind sees, may do, is rewarded for, and trains on by default."""
+
+    inputs: str  # PolicyConfig.inputs
+    stop: bool  # STOP among the actions
+    reward: str  # quality | navigation | novelty
+    task: str  # default training task
+    entropy_coef: float  # the seed's: 0.01 for pi^Q, 0.2 otherwise
+    train_refiner: bool
+
+
+KINDS = {
+    "quality": KindSpec("separation", False, "quality", "near_target", 0.01, True),
+    "navigation": KindSpec("separation", True, "navigation", "far_target", 0.2, False),
+    "novelty": KindSpec("separation", False, "novelty", "near_target", 0.2, False),
+    "av_navigator": KindSpec("mixture", True, "navigation", "far_target", 0.2, False),
+}
+TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
+TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Hyperparameters of one training run (defaults: the seed's coefficients, the original's PPO)."""
+
+    kind: str = "quality"
+    preset: str = "compact"  # policy widths: paper | compact
+    episodes: EpisodeConfig | None = None  # None: train scenes, heard sounds, the kind's task
+    env: EnvConfig = field(default_factory=EnvConfig)
+    separator: str = str(DEFAULT_SEPARATOR_CHECKPOINT)
+    n_envs: int = 16  # slots per worker
+    n_steps: int = 20  # rollout length per update (the original's num_steps)
+    updates: int = 1000
+    ppo_epochs: int = 4
+    n_minibatches: int = 1
+    clip: float = 0.1
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    action_coef: float = 1.0
+    value_coef: float = 0.5
+    entropy_coef: float | None = None  # None: the kind's
+    lr: float = 1e-4
+    refiner_lr: float = 5e-4
+    adam_eps: float = 1e-5
+    max_grad_norm: float = 0.5
+    linear_decay: bool = True  # lr and clip decay linearly to 0 over ``updates``
+    train_refiner: bool | None = None  # None: the kind's
+    refiner_epochs: int = 4  # passes of f^R's L1 over each rollout (the original: ppo_epoch)
+    final_nmse_weight: float = 10.0  # quality: -weight x NMSE at the last step
+    seed: int = 0
+    threads: int = 2  # torch intra-op threads and env render threads
+    checkpoint_every: int = 25  # updates
+    device: str = "auto"  # auto: CUDA when present, else CPU
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ConfigError(f"PPOConfig.kind={self.kind!r} must be one of {sorted(KINDS)}")
+        if self.preset not in PRESET_NAMES:
+            raise ConfigError(f"PPOConfig.preset={self.preset!r} must be one of {PRESET_NAMES}")
+        if self.episodes is not None and not isinstance(self.episodes, EpisodeConfig):
+            raise ConfigError("PPOConfig.episodes must be an EpisodeConfig or None")
+        if not isinstance(self.env, EnvConfig):
+            raise ConfigError("PPOConfig.env must be an EnvConfig")
+        for name, low in (("n_envs", 1), ("n_steps", 1), ("updates", 1), ("ppo_epochs", 1), ("refiner_epochs", 1), ("n_minibatches", 1),
+                          ("seed", 0), ("threads", 1), ("checkpoint_every", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ConfigError(f"PPOConfig.{name}={value!r} must be an int >= {low}")
+        if self.n_envs % self.n_minibatches:
+            raise ConfigError(f"PPOConfig.n_minibatches={self.n_minibatches} must divide n_envs={self.n_envs}")
+        for name in ("clip", "gamma", "gae_lambda", "lr", "refiner_lr", "adam_eps"):
+            value = getattr(self, name)
+            if not (isinstance(value, float) and 0 < value <= 1):
+                raise ConfigError(f"PPOConfig.{name}={value!r} must be a float in (0, 1]")
+        for name in ("action_coef", "value_coef", "max_grad_norm", "final_nmse_weight"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+                raise ConfigError(f"PPOConfig.{name}={value!r} must be a number >= 0")
+        if self.entropy_coef is not None and not (isinstance(self.entropy_coef, float) and self.entropy_coef >= 0):
+            raise ConfigError(f"PPOConfig.entropy_coef={self.entropy_coef!r} must be None or a float >= 0")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ConfigError(f"PPOConfig.device={self.device!r} must be auto, cpu or cuda")
+
+    @property
+    def spec(self) -> KindSpec:
+        return KINDS[self.kind]
+
+    @property
+    def entropy(self) -> float:
+        return self.spec.entropy_coef if self.entropy_coef is None else self.entropy_coef
+
+    @property
+    def refiner_trained(self) -> bool:
+        return self.spec.train_refiner if self.train_refiner is None else self.train_refiner
+
+    def episode_config(self) -> EpisodeConfig:
+        if self.episodes is not None:
+            return self.episodes
+        far = self.spec.task == "far_target"
+        return EpisodeConfig(task=self.spec.task, scene_split="train", sound_split="heard", count=2000,
+                             seed=self.seed, max_steps=TRAIN_FAR_STEPS if far else None)
+
+    def policy_config(self) -> PolicyConfig:
+        return PolicyConfig.preset(self.preset, inputs=self.spec.inputs, stop=self.spec.stop,
+                                   camera=self.env.camera)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-like values (what ``config.json`` holds and a resume must match)."""
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+
+@dataclass
+class TrainResult:
+    net: PolicyNet
+    out_dir: Path
+    history: list[dict[str, float]]
+    checkpoint: Path
+
+
+# --------------------------------------------------------------------------- distributed
+
+
+def init_distributed() -> tuple[int, int]:
+    """(rank, world size): joins the torchrun group when launched by torchrun, else (0, 1)."""
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
+        if torch.cuda.is_available():
+            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))  # one GPU per worker
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    if dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def _all_reduce_mean(tensors: list[torch.Tensor], world: int) -> None:
+    """Average tensors in place over all workers (one flat all-reduce)."""
+    if world == 1 or not tensors:
+        return
+    flat = torch.cat([t.reshape(-1) for t in tensors])
+    dist.all_reduce(flat)
+    flat /= world
+    offset = 0
+    for t in tensors:
+        t.copy_(flat[offset: offset + t.numel()].view_as(t))
+        offset += t.numel()
+
+
+def _all_reduce_sum(values: np.ndarray, world: int, device: torch.device) -> np.ndarray:
+    if world == 1:
+        return values
+    tensor = torch.as_tensor(values, dtype=torch.float64, device=device)
+    dist.all_reduce(tensor)
+    return tensor.cpu().numpy()
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def nmse(estimate: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(B,) mean squared error of magnitudes (B, ...) over the target's mean square."""
+    # float64 sums: numpy's float32 reductions round differently with the array's memory alignment,
+    # which would make a resumed run (arrays loaded from a file) drift from an uninterrupted one.
+    axes = tuple(range(1, target.ndim))
+    error = np.mean(np.square(estimate - target), axis=axes, dtype=np.float64)
+    return error / np.maximum(np.mean(np.square(target), axis=axes, dtype=np.float64), 1e-12)
+
+
+def gae(rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, next_value: torch.Tensor, *,
+        gamma: float, lam: float) -> torch.Tensor:
+    """Generalised advantage estimates (T, N); ``dones[t]``: the episode ended with action t."""
+    advantages = torch.zeros_like(rewards)
+    last = torch.zeros_like(next_value)
+    for t in reversed(range(rewards.shape[0])):
+        nonterminal = 1.0 - dones[t].float()
+        following = next_value if t == rewards.shape[0] - 1 else values[t + 1]
+        delta = rewards[t] + gamma * following * nonterminal - values[t]
+        last = delta + gamma * lam * nonterminal * last
+        advantages[t] = last
+    return advantages
+
+
+def _sliced(magnitude: np.ndarray, n_slices: int) -> np.ndarray:
+    """(B, F, T) monaural magnitude -> a copy (B, S, F / S, T) (the caller's array changes in place)."""
+    return to_slices(magnitude[:, None], n_slices=n_slices).copy()
+
+
+def _to_tensors(values: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    return {key: torch.from_numpy(np.ascontiguousarray(value)) for key, value in values.items()}
+
+
+def _to_arrays(values: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+    return {key: value.numpy().copy() for key, value in values.items()}
+
+
+def plot_curve(path: Path, history: list[dict[str, float]], *, kind: str) -> Path:
+    """Training curve (matplotlib Agg): episode return and the losses vs environment steps."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    steps = [h["env_steps"] for h in history]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    left.plot(steps, [h["return_window"] for h in history], "C0-", label="episode return (last 50)")
+    if kind == "quality":
+        twin = left.twinx()
+        twin.plot(steps, [h["final_nmse_window"] for h in history], "C3-", label="final NMSE (last 50)")
+        twin.set_ylabel("final NMSE")
+        twin.legend(loc="lower right", fontsize=8)
+    left.set(title=f"PPO {kind}", xlabel="environment steps", ylabel="return")
+    for key, style in (("value_loss", "C1-"), ("action_loss", "C2-"), ("entropy", "C4-"), ("refiner_l1", "C5-")):
+        right.plot(steps, [h[key] for h in history], style, label=key.replace("_", " "))
+    right.set(title="losses", xlabel="environment steps")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------- the trainer
+
+
+@dataclass
+class _Rollout:
+    """One update's experience of N slots over T steps (time-major)."""
+
+    inputs: list[PolicyInputs] = field(default_factory=list)
+    actions: list[torch.Tensor] = field(default_factory=list)  # network action indices
+    log_probs: list[torch.Tensor] = field(default_factory=list)
+    values: list[torch.Tensor] = field(default_factory=list)
+    rewards: list[torch.Tensor] = field(default_factory=list)
+    starts: list[torch.Tensor] = field(default_factory=list)  # obs t is its episode's first
+    dones: list[torch.Tensor] = field(default_factory=list)  # the episode ended with action t
+    monaural: list[torch.Tensor] = field(default_factory=list)  # f^R's inputs and target, sliced
+    memory: list[torch.Tensor] = field(default_factory=list)
+    target: list[torch.Tensor] = field(default_factory=list)
+
+
+class PPOTrainer:
+    """The state of one training worker and its loop (``run``); see the module docstring."""
+
+    def __init__(self, config: PPOConfig, library: SoundLibrary, *, out_dir: Path,
+                 rir_cache_dir: Path | None = None, progress: bool = True, command: str | None = None) -> None:
+        self.config, self.out_dir, self.command = config, Path(out_dir), command or "PPOTrainer"
+        self.rank, self.world = init_distributed()
+        self.progress = progress and self.rank == 0
+        if config.device == "cuda" and not torch.cuda.is_available():
+            raise ConfigError("PPOConfig.device='cuda' but no CUDA device is available")
+        if config.device != "cpu" and torch.cuda.is_available():
+            self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        else:
+            self.device = torch.device("cpu")
+        torch.set_num_threads(config.threads)
+        torch.manual_seed(config.seed)
+        self.policy_config = config.policy_config()
+        self.net = PolicyNet(self.policy_config).to(self.device)
+        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=config.lr, eps=config.adam_eps)
+        self.loaded = load_separator(config.separator, map_location=self.device)
+        self.policy_config.check_stft(self.loaded.stft)
+        if self.loaded.stft != config.env.stft:
+            raise ConfigError("the separator's STFT settings differ from the environment's")
+        self.separator = self.loaded.separator
+        self.refiner_optimizer = torch.optim.Adam(self.separator.refiner.parameters(), lr=config.refiner_lr,
+                                                  eps=config.adam_eps)
+        if self.world > 1:
+            for tensor in [*self.net.state_dict().values(), *self.separator.refiner.state_dict().values()]:
+                dist.broadcast(tensor, 0)
+        self.episodes = episodes_for(config.episode_config(), library)
+        env_config = dataclasses.replace(config.env, seed=config.env.seed + self.rank)
+        self.env = BatchEnv(self.episodes, library, n_envs=config.n_envs, config=env_config,
+                            rir_cache_dir=rir_cache_dir, threads=config.threads)
+        self.runner = SeparatorRunner(self.loaded, config.n_envs)
+        self.actions = torch.from_numpy(self.policy_config.env_actions())
+        self.generator = torch.Generator().manual_seed(config.seed * 1_000_003 + self.rank)
+        self.rng = np.random.default_rng([config.seed, self.rank])
+        self.update, self.env_steps, self.history = 0, 0, []
+        self.windows = {"return": deque(maxlen=50), "final_nmse": deque(maxlen=50), "success": deque(maxlen=50)}
+        self.times = np.zeros(5)  # sim, separator, acting, policy update, f^R update (seconds, this worker)
+        self.wall_before = 0.0  # seconds spent in earlier sessions of this run
+        self.resume_path = self.out_dir / ("resume.pt" if self.world == 1 else f"resume.rank{self.rank}.pt")
+
+    # ------------------------------------------------------------------ episode state
+    def _begin(self) -> None:
+        """Fresh start: reset every slot and separate the first observations."""
+        n = self.config.n_envs
+        self.obs, info = self.env.reset()
+        self.starts = np.ones(n, bool)
+        self.hidden = self.net.initial_hidden(n)
+        self.returns, self.lengths = np.zeros(n), np.zeros(n, np.int64)
+        self.target_mag = np.abs(stft(info["target_monaural"], config=self.loaded.stft)).astype(np.float32)
+        self.visits = np.zeros((n, self.env.max_nodes), np.int64)
+        self.visits[np.arange(n), self.obs["node"]] = 1
+        self.last_classes = self._classes()
+        self.separation = self.runner.step(self.obs["audio"], self.last_classes, np.ones(n, bool))
+        self.nmse_now = nmse(self.separation.refined, self.target_mag)
+        self.final_nmse = np.zeros(n)
+
+    def _classes(self) -> np.ndarray:
+        return self.runner.class_indices([e.target_category for e in self.env.current_episodes])
+
+    def _inputs(self, obs: dict, separation: SeparationStep) -> PolicyInputs:
+        seen = controller_observation(obs, separation)
+        return policy_inputs(self.policy_config, separated_binaural=seen.separated_binaural, monaural=seen.monaural,
+                             refined=seen.refined, audio=seen.audio, target_class=obs["target_class"], rgb=seen.rgb,
+                             stft_config=self.loaded.stft)
+
+    # ------------------------------------------------------------------ rollout
+    def _collect(self) -> tuple[_Rollout, torch.Tensor, list[dict[str, float]]]:
+        """n_steps steps of every slot; returns the rollout, the bootstrap value and finished episodes."""
+        cfg, s = self.config, self.loaded.config.n_freq_slices
+        rollout, finished = _Rollout(), []
+        self.hidden_start = self.hidden.clone()
+        for _ in range(cfg.n_steps):
+            tick = time.perf_counter()
+            inputs = self._inputs(self.obs, self.separation)
+            starts = torch.from_numpy(self.starts.copy())
+            with torch.no_grad():
+                out = self.net.step(inputs.to(self.device), self.hidden, starts.to(self.device))
+                probs = torch.softmax(out.logits, dim=-1).cpu()
+                action = torch.multinomial(probs, 1, generator=self.generator)[:, 0]
+                log_prob = torch.log(probs.gather(1, action[:, None])[:, 0])
+            self.hidden = out.hidden
+            rollout.inputs.append(inputs)
+            rollout.actions.append(action)
+            rollout.log_probs.append(log_prob)
+            rollout.values.append(out.value.cpu())
+            rollout.starts.append(starts)
+            if self.refining:
+                memory = self.runner.memory.cpu().clone()
+                rollout.memory.append(memory)
+                rollout.monaural.append(torch.from_numpy(_sliced(self.separation.monaural, s)))
+                rollout.target.append(torch.from_numpy(_sliced(self.target_mag, s)))
+            tock = time.perf_counter()
+            self.times[2] += tock - tick
+
+            obs, env_reward, terminated, truncated, info = self.env.step(self.actions[action].numpy())
+            done = terminated | truncated
+            tick = time.perf_counter()
+            self.times[0] += tick - tock
+
+            ended = np.flatnonzero(done)
+            classes, final = self._classes(), None
+            if len(ended):
+                final = self.runner.step(info["final_observation"]["audio"][ended], self.last_classes[ended],
+                                         np.zeros(len(ended), bool), rows=ended)
+            separation = self.runner.step(obs["audio"], classes, done)
+            reward = self._reward(obs, info, env_reward, separation, final, ended)
+            self.last_classes = classes
+            self.times[1] += time.perf_counter() - tick
+
+            self.returns += reward
+            self.lengths += 1
+            for slot in ended.tolist():
+                record = {"return": float(self.returns[slot]), "length": int(self.lengths[slot]),
+                          "success": float(info["final_info"]["success"][slot])}
+                if self.config.spec.reward == "quality":
+                    record["final_nmse"] = float(self.final_nmse[slot])
+                finished.append(record)
+            self.returns[ended], self.lengths[ended] = 0.0, 0
+            rollout.rewards.append(torch.from_numpy(reward.astype(np.float32)))
+            rollout.dones.append(torch.from_numpy(done.copy()))
+            self.obs, self.separation, self.starts = obs, separation, done.copy()
+            self.env_steps += cfg.n_envs * self.world
+        tick = time.perf_counter()
+        with torch.no_grad():
+            inputs = self._inputs(self.obs, self.separation).to(self.device)
+            next_value = self.net.step(inputs, self.hidden, torch.from_numpy(self.starts).to(self.device)).value.cpu()
+        self.times[2] += time.perf_counter() - tick
+        return rollout, next_value, finished
+
+    def _reward(self, obs: dict, info: dict, env_reward: np.ndarray, separation: SeparationStep,
+                final: SeparationStep | None, ended: np.ndarray) -> np.ndarray:
+        """The kind's reward of the step just taken; updates the per-episode reward state."""
+        kind = self.config.spec.reward
+        if kind == "navigation":
+            return env_reward.astype(np.float64)
+        if kind == "novelty":
+            nodes = obs["node"].copy()
+            if len(ended):
+                nodes[ended] = info["final_observation"]["node"][ended]
+            rows = np.arange(len(nodes))
+            self.visits[rows, nodes] += 1
+            reward = 1.0 / np.sqrt(self.visits[rows, nodes])
+            self.visits[ended] = 0
+            self.visits[ended, obs["node"][ended]] = 1
+            return reward
+        # quality: NMSE_t - NMSE_{t+1} of the refined estimate; -w x NMSE at the last step.
+        refined = separation.refined.copy()
+        if final is not None:
+            refined[ended] = final.refined
+        after = nmse(refined, self.target_mag)
+        reward = self.nmse_now - after
+        reward[ended] -= self.config.final_nmse_weight * after[ended]
+        self.final_nmse = after
+        if len(ended):
+            self.target_mag[ended] = np.abs(stft(info["target_monaural"][ended], config=self.loaded.stft))
+        self.nmse_now = nmse(separation.refined, self.target_mag)
+        return reward
+
+    # ------------------------------------------------------------------ update
+    def _decay(self) -> float:
+        return 1.0 - self.update / self.config.updates if self.config.linear_decay else 1.0
+
+    def _update_policy(self, rollout: _Rollout, next_value: torch.Tensor) -> dict[str, float]:
+        cfg, dev = self.config, self.device
+        n = cfg.n_envs
+        rewards, values = torch.stack(rollout.rewards), torch.stack(rollout.values)
+        dones, starts = torch.stack(rollout.dones), torch.stack(rollout.starts)
+        advantages = gae(rewards, values, dones, next_value, gamma=cfg.gamma, lam=cfg.gae_lambda)
+        returns = advantages + values
+        moments = _all_reduce_sum(np.array([advantages.sum().item(), advantages.square().sum().item(),
+                                            advantages.numel()]), self.world, dev)
+        mean = moments[0] / moments[2]
+        std = math.sqrt(max(moments[1] / moments[2] - mean ** 2, 0.0))
+        advantages = (advantages - mean) / (std + 1e-5)
+        inputs = PolicyInputs(*(None if parts[0] is None else torch.stack(parts)
+                                for parts in zip(*rollout.inputs, strict=True)))
+        actions, old_log_probs = torch.stack(rollout.actions), torch.stack(rollout.log_probs)
+        clip = cfg.clip * self._decay()
+        for group in self.optimizer.param_groups:
+            group["lr"] = cfg.lr * self._decay()
+        sums, count = np.zeros(3), 0
+        per_batch = n // cfg.n_minibatches
+        for _ in range(cfg.ppo_epochs):
+            order = self.rng.permutation(n)
+            for b in range(cfg.n_minibatches):
+                # Sorted: one minibatch of all slots then needs no copy of the inputs.
+                slots = torch.from_numpy(np.sort(order[b * per_batch: (b + 1) * per_batch]))
+                rows = slice(None) if per_batch == n else slots
+                batch = PolicyInputs(*(None if x is None else x[:, rows] for x in inputs)).flat().to(dev)
+                out = self.net.evaluate(batch, self.hidden_start[slots.to(dev)], starts[:, slots].to(dev))
+                log_probs_all = torch.log_softmax(out.logits, dim=-1)
+                log_prob = log_probs_all.gather(2, actions[:, slots, None].to(dev))[..., 0]
+                entropy = -(log_probs_all.exp() * log_probs_all).sum(-1).mean()
+                ratio = torch.exp(log_prob - old_log_probs[:, slots].to(dev))
+                adv = advantages[:, slots].to(dev)
+                action_loss = -torch.min(ratio * adv, ratio.clamp(1 - clip, 1 + clip) * adv).mean()
+                old_values, target = values[:, slots].to(dev), returns[:, slots].to(dev)
+                clipped = old_values + (out.value - old_values).clamp(-clip, clip)
+                value_loss = 0.5 * torch.max((out.value - target).square(), (clipped - target).square()).mean()
+                loss = cfg.action_coef * action_loss + cfg.value_coef * value_loss - cfg.entropy * entropy
+                self.optimizer.zero_grad()
+                loss.backward()
+                self._step(self.optimizer, list(self.net.parameters()))
+                sums += [value_loss.item(), action_loss.item(), entropy.item()]
+                count += 1
+        return dict(zip(("value_loss", "action_loss", "entropy"), (sums / count).tolist(), strict=True))
+
+    def _step(self, optimizer: torch.optim.Optimizer, params: list[torch.nn.Parameter]) -> None:
+        """All-reduce (DD-PPO), clip the gradient norm, step."""
+        for p in params:
+            if p.grad is None:
+                p.grad = torch.zeros_like(p)
+        _all_reduce_mean([p.grad for p in params], self.world)
+        torch.nn.utils.clip_grad_norm_(params, self.config.max_grad_norm)
+        optimizer.step()
+
+    def _update_refiner(self, rollout: _Rollout) -> float:
+        """L1 of f^R(f^M estimate, stored memory) to the ground-truth magnitude (f^B, f^M frozen)."""
+        cfg, dev = self.config, self.device
+        monaural, memory = torch.stack(rollout.monaural), torch.stack(rollout.memory)
+        target, starts = torch.stack(rollout.target), torch.stack(rollout.starts)
+        params = list(self.separator.refiner.parameters())
+        per_batch = cfg.n_envs // cfg.n_minibatches
+        total, count = 0.0, 0
+        for _ in range(cfg.refiner_epochs):
+            order = self.rng.permutation(cfg.n_envs)
+            for b in range(cfg.n_minibatches):
+                slots = torch.from_numpy(order[b * per_batch: (b + 1) * per_batch])
+                refined = self.separator.refine(monaural[:, slots].flatten(0, 1).to(dev),
+                                                memory[:, slots].flatten(0, 1).to(dev),
+                                                starts[:, slots].flatten().to(dev))
+                loss = F.l1_loss(refined, target[:, slots].flatten(0, 1).to(dev))
+                self.refiner_optimizer.zero_grad()
+                loss.backward()
+                self._step(self.refiner_optimizer, params)
+                total, count = total + loss.item(), count + 1
+        return total / count
+
+    @property
+    def refining(self) -> bool:
+        return self.config.refiner_trained
+
+    # ------------------------------------------------------------------ checkpoints
+    def _state(self) -> dict[str, Any]:
+        """Everything needed to continue exactly (tensors and plain types: loads weights-only)."""
+        sep = self.separation
+        return {
+            "config": self.config.to_dict(), "update": self.update, "env_steps": self.env_steps,
+            "history": self.history, "windows": {k: list(v) for k, v in self.windows.items()},
+            "wall": self.wall_before + time.perf_counter() - self.session_start,
+            "net": self.net.state_dict(), "optimizer": self.optimizer.state_dict(),
+            "refiner": self.separator.refiner.state_dict(), "refiner_optimizer": self.refiner_optimizer.state_dict(),
+            "generator": self.generator.get_state(), "rng": self.rng.bit_generator.state,
+            "env": self.env.state(),
+            "obs": _to_tensors(self.obs), "separation": _to_tensors(dataclasses.asdict(sep)),
+            "memory": self.runner.memory.cpu(), "hidden": self.hidden.cpu(),
+            "episode": _to_tensors({"starts": self.starts, "returns": self.returns, "lengths": self.lengths,
+                                    "target_mag": self.target_mag, "visits": self.visits,
+                                    "nmse_now": self.nmse_now, "final_nmse": self.final_nmse,
+                                    "last_classes": self.last_classes}),
+        }
+
+    def _restore(self, state: dict[str, Any]) -> None:
+        if state["config"] != self.config.to_dict():
+            ours = self.config.to_dict()
+            changed = sorted(k for k in set(ours) | set(state["config"]) if ours.get(k) != state["config"].get(k))
+            raise CheckpointError(f"{self.resume_path} was written by a run with other settings ({', '.join(changed)}); "
+                                  f"use another --out or --fresh")
+        self.update, self.env_steps, self.history = state["update"], state["env_steps"], state["history"]
+        for key, values in state["windows"].items():
+            self.windows[key].extend(values)
+        self.wall_before = state["wall"]
+        self.net.load_state_dict(state["net"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.separator.refiner.load_state_dict(state["refiner"])
+        self.refiner_optimizer.load_state_dict(state["refiner_optimizer"])
+        self.generator.set_state(state["generator"])
+        self.rng.bit_generator.state = state["rng"]
+        self.env.restore(state["env"])
+        self.obs = _to_arrays(state["obs"])
+        self.separation = SeparationStep(**_to_arrays(state["separation"]))
+        self.runner.memory = state["memory"].to(self.device)
+        self.hidden = state["hidden"].to(self.device)
+        episode = _to_arrays(state["episode"])
+        for key in ("starts", "returns", "lengths", "target_mag", "visits", "nmse_now", "final_nmse", "last_classes"):
+            setattr(self, key, episode[key])
+
+    def _write(self) -> Path:
+        """Checkpoint: this worker's resume state; rank 0 also the policy, separator, log and curve."""
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        tmp = self.resume_path.with_suffix(".tmp")
+        torch.save(self._state(), tmp)
+        os.replace(tmp, self.resume_path)
+        policy = self.out_dir / "policy.pt"
+        if self.rank == 0:
+            wall = self.wall_before + time.perf_counter() - self.session_start
+            metadata = {"command": self.command, "updates": self.update, "env_steps": self.env_steps,
+                        "wall_seconds": round(wall, 1), "workers": self.world, "machine": _machine(),
+                        "separator": str(self.config.separator), "refiner_trained": self.refining,
+                        "config": self.config.to_dict()}
+            save_policy(policy, self.net, policy_kind=self.config.kind, stft_config=self.loaded.stft,
+                        metadata=metadata)
+            if self.refining:
+                save_separator(self.out_dir / "separator.pt", self.separator, classes=self.loaded.classes,
+                               stft_config=self.loaded.stft,
+                               metadata={**self.loaded.metadata, "refiner_trained_with": str(policy)})
+            with open(self.out_dir / "log.csv", "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=list(self.history[0]))
+                writer.writeheader()
+                writer.writerows(self.history)
+            plot_curve(self.out_dir / "curve.png", self.history, kind=self.config.kind)
+        if self.world > 1:
+            dist.barrier()
+        return policy
+
+    # ------------------------------------------------------------------ the loop
+    def run(self, *, fresh: bool = False, stop_after: int | None = None) -> TrainResult:
+        """Train up to ``config.updates`` (continuing a resume state unless ``fresh``); ``stop_after``
+        ends this session (with a checkpoint) after that many updates."""
+        cfg = self.config
+        self.session_start = time.perf_counter()
+        if self.resume_path.is_file() and not fresh:
+            self._restore(torch.load(self.resume_path, weights_only=True))
+        else:
+            self._begin()
+        if self.rank == 0:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            (self.out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
+        bar = tqdm(total=cfg.updates, initial=self.update, desc=f"PPO {cfg.kind}", unit="update",
+                   disable=not self.progress)
+        policy = self.out_dir / "policy.pt"
+        session_updates = 0
+        try:
+            while self.update < cfg.updates and (stop_after is None or session_updates < stop_after):
+                started, cpu, times_before = time.perf_counter(), time.process_time(), self.times.copy()
+                rollout, next_value, finished = self._collect()
+                tick = time.perf_counter()
+                losses = self._update_policy(rollout, next_value)
+                self.times[3] += time.perf_counter() - tick
+                tick = time.perf_counter()
+                losses["refiner_l1"] = self._update_refiner(rollout) if self.refining else float("nan")
+                self.times[4] += time.perf_counter() - tick
+                self.update += 1
+                session_updates += 1
+                self._log(finished, losses, time.perf_counter() - started, time.process_time() - cpu,
+                          self.times - times_before)
+                bar.update()
+                bar.set_postfix(ret=f"{self.history[-1]['return_window']:.3f}", sps=f"{self.history[-1]['sps']:.0f}")
+                if self.update % cfg.checkpoint_every == 0 or self.update == cfg.updates \
+                        or session_updates == stop_after:
+                    policy = self._write()
+        finally:
+            bar.close()
+        return TrainResult(self.net, self.out_dir, self.history, policy)
+
+    def _log(self, finished: list[dict[str, float]], losses: dict[str, float], seconds: float, cpu: float,
+             times: np.ndarray) -> None:
+        keys = ("return", "final_nmse", "success")
+        local = np.array([len(finished)] + [sum(r.get(k, 0.0) for r in finished) for k in keys])
+        totals = _all_reduce_sum(local, self.world, self.device)
+        episodes = int(totals[0])
+        for key, total in zip(keys, totals[1:], strict=True):
+            if episodes:
+                self.windows[key].append(float(total / episodes))
+        steps = self.config.n_envs * self.config.n_steps * self.world
+
+        def window(key: str) -> float:
+            return float(np.mean(self.windows[key])) if self.windows[key] else float("nan")
+
+        self.history.append({
+            "update": self.update, "env_steps": self.env_steps, "episodes": episodes,
+            "return_window": window("return"), "final_nmse_window": window("final_nmse"),
+            "success_window": window("success"), **losses, "lr": self.config.lr * self._decay(),
+            "sps": steps / seconds, "cpu_ms_per_step": 1e3 * cpu * self.world / steps, **{f"{part}_share": float(share / seconds)
+                                       for part, share in zip(TIMED_PARTS, times, strict=True)},
+        })
+
+
+def train(config: PPOConfig, library: SoundLibrary, *, out_dir: Path, rir_cache_dir: Path | None = None,
+          progress: bool = True, command: str | None = None, fresh: bool = False,
+          stop_after: int | None = None) -> TrainResult:
+    """Train (or continue, when ``out_dir`` holds a resume state of the same settings) one policy."""
+    trainer = PPOTrainer(config, library, out_dir=out_dir, rir_cache_dir=rir_cache_dir, progress=progress,
+                         command=command)
+    try:
+        return trainer.run(fresh=fresh, stop_after=stop_after)
+    finally:
+        trainer.env.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse  # noqa: PLC0415
+    import shlex  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    parser = argparse.ArgumentParser(description="Train a learned controller with PPO (DD-PPO under torchrun).")
+    parser.add_argument("--kind", required=True, choices=sorted(KINDS))
+    parser.add_argument("--preset", default="compact", choices=PRESET_NAMES)
+    parser.add_argument("--updates", type=int, default=PPOConfig.updates)
+    parser.add_argument("--n-envs", type=int, default=PPOConfig.n_envs)
+    parser.add_argument("--n-steps", type=int, default=PPOConfig.n_steps)
+    parser.add_argument("--episodes", type=int, default=2000, help="training episodes (train scenes, heard sounds)")
+    parser.add_argument("--task", choices=("near_target", "far_target"), help="default: the kind's")
+    parser.add_argument("--separator", default=str(DEFAULT_SEPARATOR_CHECKPOINT))
+    parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
+    parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,
+                        help="passes of f^R's L1 per update (quality)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=PPOConfig.threads)
+    parser.add_argument("--checkpoint-every", type=int, default=PPOConfig.checkpoint_every)
+    parser.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    parser.add_argument("--out", type=Path, help="run directory (default runs/policy_<kind>)")
+    parser.add_argument("--fresh", action="store_true", help="start over even if --out holds a resume state")
+    args = parser.parse_args(argv)
+    task = args.task or KINDS[args.kind].task
+    episodes = EpisodeConfig(task=task, scene_split="train", sound_split="heard", count=args.episodes, seed=args.seed,
+                             max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
+    config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
+                       env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
+                       n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
+                       seed=args.seed, threads=args.threads,
+                       checkpoint_every=args.checkpoint_every, device=args.device)
+    command = shlex.join(["python", "scripts/train_policy.py", *(sys.argv[1:] if argv is None else argv)])
+    result = train(config, SoundLibrary.load(), out_dir=args.out or Path("runs") / f"policy_{args.kind}",
+                   command=command, fresh=args.fresh)
+    if dist.is_initialized():
+        dist.destroy_process_group()
+    last = result.history[-1] if result.history else {}
+    print(f"[train_policy] {args.kind}: {last.get('update', 0)} updates, {last.get('env_steps', 0)} env steps; "
+          f"policy {result.checkpoint}, log {result.out_dir / 'log.csv'}, curve {result.out_dir / 'curve.png'}")
+    return 0

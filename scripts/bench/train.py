@@ -1,0 +1,70 @@
+"""PPO training throughput: environment steps/s of the compact policy on the test scenes, and the share
+of an update's wall time spent in the simulator, the separator (f^B, f^M, f^R inference), acting
+(policy inputs + forward), the PPO update and the f^R update (quality only).
+
+    python scripts/bench/train.py [--kind quality] [--updates 4] [--repeats 3] [--n-envs 16] [--threads 2]
+
+Each repeat is a fresh trainer (16 slots x 20 steps per update, camera on, the shipped compact
+separator, the full sound library) on near-target (far-target for navigation kinds) test episodes,
+whose RIR banks must be built (they are what the lead builds for evaluation). RIR banks and camera
+views are loaded before timing and the first update is a warm-up; the figure is the median over the
+remaining updates, with the process's CPU time per env step (all threads: what the steps cost
+whatever the load). The load average before and after each repeat is printed: on a shared machine
+the steps/s are only as good as the cores were free.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from m2h_ros.core.sounds.library import SoundLibrary
+from m2h_ros.core.world.env import EnvConfig
+from m2h_ros.core.world.episodes import EpisodeConfig
+from m2h_ros.training.ppo import KINDS, TIMED_PARTS, PPOConfig, PPOTrainer
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--kind", default="quality", choices=sorted(KINDS))
+    parser.add_argument("--preset", default="compact")
+    parser.add_argument("--updates", type=int, default=4, help="per repeat, the first one a warm-up")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--n-envs", type=int, default=16)
+    parser.add_argument("--n-steps", type=int, default=20)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--no-camera", action="store_true")
+    parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs)
+    args = parser.parse_args()
+    library = SoundLibrary.load()
+    episodes = EpisodeConfig(task=KINDS[args.kind].task, scene_split="test", sound_split="heard", count=200)
+    config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes, env=EnvConfig(camera=not args.no_camera),
+                       n_envs=args.n_envs, n_steps=args.n_steps, updates=args.updates, threads=args.threads,
+                       refiner_epochs=args.refiner_epochs, checkpoint_every=args.updates + 1)
+    print(f"PPO {args.kind}, {args.preset} policy, {args.n_envs} slots x {args.n_steps} steps per update, "
+          f"camera {'off' if args.no_camera else 'on'}, f^R trained: {config.refiner_trained} "
+          f"({args.refiner_epochs} passes), {args.threads} torch threads, {os.cpu_count()} CPUs")
+    for repeat in range(args.repeats):
+        before = os.getloadavg()[0]
+        with tempfile.TemporaryDirectory() as out:
+            trainer = PPOTrainer(config, library, out_dir=Path(out), progress=False)
+            trainer.env.prepare(progress=False)
+            try:
+                history = trainer.run(stop_after=args.updates).history[1:]
+            finally:
+                trainer.env.close()
+        sps = [h["sps"] for h in history]
+        cpu = np.median([h["cpu_ms_per_step"] for h in history])
+        shares = {p: np.median([h[f"{p}_share"] for h in history]) for p in TIMED_PARTS}
+        print(f"repeat {repeat + 1}: {np.median(sps):.0f} env steps/s (updates {', '.join(f'{s:.0f}' for s in sps)}), "
+              f"{cpu:.1f} CPU ms per env step (all threads); "
+              + ", ".join(f"{p} {100 * v:.0f}%" for p, v in shares.items())
+              + f"; load average {before:.1f} -> {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""Learned controllers behind the controller interface: registered, clear errors without checkpoints,
+the same actions as the training loop's network, batch-independent sampling, and the composite switch."""
+
+import numpy as np
+import pytest
+import torch
+
+from m2h_ros.agents import learned
+from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
+from m2h_ros.agents.registry import LEARNED, controller_class, make_controller
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
+from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.models.policy import PolicyConfig, PolicyNet, policy_inputs, save_policy
+
+SMALL = PolicyConfig(hidden=16, channels=(4, 8, 4), image_size=40)
+
+
+def observation(n: int, step: int = 0, seed: int = 0) -> ControllerObservation:
+    rng = np.random.default_rng(seed)
+    return ControllerObservation(
+        step=np.full(n, step, np.int64), pose=np.zeros((n, 3), np.float32),
+        audio=rng.standard_normal((n, 2, 16000)).astype(np.float32),
+        separated_binaural=rng.random((n, 2, 512, 32), dtype=np.float32) * 4,
+        monaural=rng.random((n, 512, 32), dtype=np.float32), refined=rng.random((n, 512, 32), dtype=np.float32),
+        rgb=rng.integers(0, 256, (n, 80, 80, 3), dtype=np.uint8), depth=rng.random((n, 80, 80), dtype=np.float32))
+
+
+def start(task: str = "near_target", seed: int = 5, target: str = "music") -> EpisodeStart:
+    return EpisodeStart(episode_id=f"e{seed}", task=task, target_class=target, max_steps=100, seed=seed)
+
+
+def saved(path, config: PolicyConfig, kind: str, *, favour: int | None = None, seed: int = 0):
+    torch.manual_seed(seed)
+    net = PolicyNet(config).eval()
+    if favour is not None:  # a policy that always picks network action ``favour``
+        with torch.no_grad():
+            net.actor.weight.zero_()
+            net.actor.bias.fill_(-50.0)
+            net.actor.bias[favour] = 50.0
+    save_policy(path, net, policy_kind=kind)
+    return net
+
+
+def test_every_learned_controller_is_registered_and_names_its_training_command(tmp_path, monkeypatch):
+    monkeypatch.setattr(learned, "DEFAULT_POLICY_DIR", tmp_path)
+    kinds = {"move2hear_quality": "quality", "move2hear_navigation": "navigation", "novelty": "novelty",
+             "av_navigator": "av_navigator", "move2hear": "quality"}
+    assert set(LEARNED) == set(kinds)
+    for name, kind in kinds.items():
+        assert issubclass(controller_class(name), Controller) and controller_class(name).name == name
+        with pytest.raises(CheckpointError, match=f"scripts/train_policy.py --kind {kind} "):
+            make_controller(name, 1)
+
+
+def test_actions_are_the_networks_with_greedy_and_sampled_modes(tmp_path):
+    net = saved(tmp_path / "q.pt", SMALL, "quality", seed=1)
+    controller = learned.Move2HearQuality(3, checkpoint=str(tmp_path / "q.pt"), greedy=True)
+    assert controller.uses_camera
+    for slot in range(3):
+        controller.reset(slot, start(seed=slot, target=("speech", "music", "music")[slot]))
+    obs = observation(3)
+    actions = controller.act(obs)
+    inputs = policy_inputs(SMALL, separated_binaural=obs.separated_binaural, monaural=obs.monaural,
+                           refined=obs.refined, audio=obs.audio, target_class=np.array([0, 1, 1]), rgb=obs.rgb)
+    with torch.no_grad():
+        logits = net.step(inputs, net.initial_hidden(3), torch.ones(3, dtype=torch.bool)).logits
+    np.testing.assert_array_equal(actions, SMALL.env_actions()[logits.argmax(1).numpy()])
+    assert STOP not in actions
+
+    # Sampled: an episode gets the same actions in any slot of any batch size.
+    def play(n_slots: int, slot: int) -> list[int]:
+        c = make_controller("move2hear_quality", n_slots, seed=4, checkpoint=str(tmp_path / "q.pt"))
+        for s in range(n_slots):
+            c.reset(s, start(seed=9 if s == slot else 100 + s))
+        return [int(c.act(observation(n_slots, step, seed=step))[slot]) for step in range(12)]
+
+    in_batch = play(3, 2)
+    assert len(set(in_batch)) > 1  # it samples, not always the mode
+    alone = make_controller("move2hear_quality", 1, seed=4, checkpoint=str(tmp_path / "q.pt"))
+    alone.reset(0, start(seed=9))
+    assert [int(alone.act(observation(3, step, seed=step).rows(np.array([2])))[0]) for step in range(12)] == in_batch
+
+
+def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_path):
+    saved(tmp_path / "policy_navigation.pt", PolicyConfig(**{**SMALL.to_dict(), "stop": True}), "navigation",
+          favour=0)  # always STOP
+    saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
+    controller = make_controller("move2hear", 2, checkpoint=str(tmp_path))
+    assert isinstance(controller, learned.Move2Hear) and controller.switch_step == 80
+    controller.reset(0, start("far_target"))
+    controller.reset(1, start("near_target"))
+    for step, expected in ((0, [STOP, TURN_LEFT]), (79, [STOP, TURN_LEFT]), (80, [TURN_LEFT, TURN_LEFT])):
+        np.testing.assert_array_equal(controller.act(observation(2, step)), expected)
+    early = learned.Move2Hear(1, checkpoint=str(tmp_path), switch_step=3)
+    early.reset(0, start("far_target"))
+    assert [int(early.act(observation(1, s))[0]) for s in range(5)] == [STOP] * 3 + [TURN_LEFT] * 2
+    with pytest.raises(CheckpointError, match="directory"):
+        make_controller("move2hear", 1, checkpoint=str(tmp_path / "policy_quality.pt"))
+    with pytest.raises(ConfigError, match="switch_step"):
+        learned.Move2Hear(1, checkpoint=str(tmp_path), switch_step=-1)
+
+
+def test_av_navigator_reads_the_mixture_and_the_target_class(tmp_path):
+    config = PolicyConfig(inputs="mixture", stop=True, camera=False, hidden=16, channels=(4, 8, 4))
+    saved(tmp_path / "av.pt", config, "av_navigator", favour=1)  # network action 1 = MOVE_FORWARD
+    controller = make_controller("av_navigator", 1, checkpoint=str(tmp_path / "av.pt"))
+    assert not controller.uses_camera
+    controller.reset(0, start("far_target"))
+    assert controller.act(observation(1)).tolist() == [MOVE_FORWARD]
+    with pytest.raises(CheckpointError, match="'av_navigator' policy, expected 'quality'"):
+        make_controller("move2hear_quality", 1, checkpoint=str(tmp_path / "av.pt"))

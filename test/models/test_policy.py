@@ -1,0 +1,134 @@
+"""The policy network: the paper's layers, the original's initialisation, sequence evaluation equal
+to stepping, inputs as a controller sees them, and self-describing checkpoints."""
+
+import numpy as np
+import pytest
+import torch
+
+from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.models.checkpoint import save_separator
+from m2h_ros.models.policy import (PolicyConfig, PolicyInputs, PolicyNet, area_downsample, load_policy,
+                                   policy_inputs, save_policy)
+from m2h_ros.models.separator import Separator, SeparatorConfig
+
+SMALL = PolicyConfig(hidden=16, channels=(4, 8, 4), image_size=40)
+
+
+def random_inputs(config: PolicyConfig, n: int, seed: int = 0) -> PolicyInputs:
+    g = torch.Generator().manual_seed(seed)
+    audio_channels = 32 if config.inputs == "separation" else 33
+    return PolicyInputs(
+        torch.randint(0, 256, (n, 3, config.image_size, config.image_size), dtype=torch.uint8, generator=g)
+        if config.camera else None,
+        torch.rand(n, audio_channels, 32, 32, generator=g) * 3,
+        torch.rand(n, 32, 32, 32, generator=g) * 3 if config.inputs == "separation" else None)
+
+
+def convs(encoder) -> list[torch.nn.Conv2d]:
+    return [m for m in encoder.modules() if isinstance(m, torch.nn.Conv2d)]
+
+
+def test_paper_preset_has_the_seed_layers():
+    net = PolicyNet(PolicyConfig.preset("paper", stop=True))
+    visual, binaural = convs(net.visual_encoder), convs(net.audio_encoder)
+    assert [c.kernel_size[0] for c in visual] == [8, 4, 3] and [c.stride[0] for c in visual] == [4, 2, 1]
+    assert [c.out_channels for c in visual] == [32, 64, 32] and visual[0].in_channels == 3  # RGB only
+    assert [c.kernel_size[0] for c in binaural] == [8, 4, 2] and binaural[0].in_channels == 32
+    assert convs(net.monaural_encoder)[0].in_channels == 32  # [f^M estimate, f^R memory] x 16 slices
+    assert net.visual_encoder.cnn[-2].out_features == 512
+    assert (net.gru.input_size, net.gru.hidden_size, net.gru.num_layers, net.gru.bidirectional) == (3 * 512, 512, 1,
+                                                                                                      False)
+    assert net.actor.out_features == 4 and net.critic.out_features == 1
+    assert PolicyNet(PolicyConfig.preset("paper")).actor.out_features == 3  # no Stop: the three moves
+    mixture = PolicyNet(PolicyConfig.preset("compact", inputs="mixture", stop=True))
+    assert mixture.monaural_encoder is None and convs(mixture.audio_encoder)[0].in_channels == 33
+    assert mixture.gru.input_size == 2 * 128
+
+
+def test_initialisation_follows_the_original():
+    torch.manual_seed(0)
+    net = PolicyNet(PolicyConfig.preset("paper"))
+    weight = convs(net.audio_encoder)[0].weight
+    assert weight.std().item() == pytest.approx(np.sqrt(2.0 / weight[0].numel()), rel=0.05)  # Kaiming normal
+    assert all(torch.all(b == 0) for n, b in net.named_parameters() if n.endswith("bias"))
+    hh = net.gru.weight_hh_l0
+    torch.testing.assert_close(hh.T @ hh, torch.eye(512), atol=1e-4, rtol=0)  # orthogonal
+    with torch.no_grad():
+        out = net.step(random_inputs(net.config, 8), net.initial_hidden(8), torch.ones(8, dtype=torch.bool))
+    probs = torch.softmax(out.logits, -1)
+    assert (probs - 1 / 3).abs().max() < 0.02  # the actor's gain 0.01: near-uniform at the start
+
+
+def test_sequence_evaluation_equals_stepping_with_resets():
+    torch.manual_seed(1)
+    net = PolicyNet(SMALL).eval()
+    t, n = 5, 3
+    inputs = random_inputs(SMALL, t * n, seed=2)
+    starts = torch.zeros(t, n, dtype=torch.bool)
+    starts[0] = True
+    starts[3, 1] = True  # slot 1 starts a new episode at step 3
+    hidden0 = torch.randn(n, SMALL.hidden)
+    with torch.no_grad():
+        whole = net.evaluate(inputs, hidden0, starts)
+        hidden, logits = hidden0, []
+        for step in range(t):
+            out = net.step(inputs.index(slice(step * n, (step + 1) * n)), hidden, starts[step])
+            hidden = out.hidden
+            logits.append(out.logits)
+        fresh = net.step(inputs.index(slice(3 * n + 1, 3 * n + 2)), torch.zeros(1, SMALL.hidden),
+                         torch.zeros(1, dtype=torch.bool))
+    torch.testing.assert_close(whole.logits, torch.stack(logits))
+    torch.testing.assert_close(whole.hidden, hidden)
+    torch.testing.assert_close(whole.logits[3, 1], fresh.logits[0])  # the reset really cleared the state
+
+
+def test_inputs_are_log_magnitudes_in_the_sliced_layout_and_the_class_plane():
+    rng = np.random.default_rng(0)
+    binaural = rng.random((2, 2, 512, 32), dtype=np.float32) * 5
+    mono, refined = (rng.random((2, 512, 32), dtype=np.float32) for _ in range(2))
+    audio = rng.standard_normal((2, 2, 16000)).astype(np.float32)
+    rgb = rng.integers(0, 256, (2, 80, 80, 3), dtype=np.uint8)
+    args = dict(separated_binaural=binaural, monaural=mono, refined=refined, audio=audio, target_class=np.array([0, 1]),
+                rgb=rgb)
+    inputs = policy_inputs(SMALL, **args)
+    np.testing.assert_allclose(inputs.audio[0, 16 + 3].numpy(), np.log1p(binaural[0, 1, 96:128]), rtol=1e-6)
+    np.testing.assert_allclose(inputs.monaural[1, 16].numpy(), np.log1p(refined[1, :32]), rtol=1e-6)
+    assert inputs.rgb.shape == (2, 3, 40, 40) and inputs.rgb.dtype == torch.uint8
+    mixture = policy_inputs(PolicyConfig(inputs="mixture", camera=False), **args)
+    assert mixture.rgb is None and mixture.monaural is None and mixture.audio.shape == (2, 33, 32, 32)
+    assert torch.all(mixture.audio[1, 32] == 2.0) and torch.all(mixture.audio[0, 32] == 1.0)  # class index + 1
+    with pytest.raises(ConfigError, match="RGB"):
+        policy_inputs(SMALL, **{**args, "rgb": None})
+
+
+def test_area_downsample_averages_blocks():
+    rgb = np.zeros((1, 4, 4, 3), np.uint8)
+    rgb[0, :2, :2] = 100
+    rgb[0, 0, 0] = 200
+    out = area_downsample(rgb, 2)
+    assert out.shape == (1, 3, 2, 2) and out[0, 0, 0, 0] == 125 and out[0, 2, 1, 1] == 0 and out.dtype == torch.uint8
+    with pytest.raises(ConfigError, match="multiple"):
+        area_downsample(np.zeros((1, 5, 5, 3), np.uint8), 2)
+    with pytest.raises(ConfigError, match="too small"):
+        PolicyConfig(image_size=32)
+
+
+def test_checkpoint_round_trip_and_errors(tmp_path):
+    torch.manual_seed(3)
+    net = PolicyNet(SMALL).eval()
+    path = save_policy(tmp_path / "p.pt", net, policy_kind="quality", metadata={"updates": 7})
+    loaded = load_policy(path, policy_kind="quality")
+    assert loaded.config == SMALL and loaded.metadata == {"updates": 7} and loaded.policy_kind == "quality"
+    inputs = random_inputs(SMALL, 2)
+    with torch.no_grad():
+        a = net.step(inputs, net.initial_hidden(2), torch.ones(2, dtype=torch.bool)).logits
+        b = loaded.net.step(inputs, net.initial_hidden(2), torch.ones(2, dtype=torch.bool)).logits
+    torch.testing.assert_close(a, b)
+    with pytest.raises(CheckpointError, match="'quality' policy, expected 'navigation'"):
+        load_policy(path, policy_kind="navigation")
+    separator = save_separator(tmp_path / "s.pt", Separator(SeparatorConfig(unet_channels=(4, 4, 4, 4, 4),
+                                                                             refiner_hidden=4)), classes=("speech",))
+    with pytest.raises(CheckpointError, match="m2h_separator"):
+        load_policy(separator)
+    with pytest.raises(CheckpointError, match="not found"):
+        load_policy(tmp_path / "none.pt")

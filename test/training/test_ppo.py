@@ -1,0 +1,111 @@
+"""PPO on a tiny config: the quality reward telescopes to the episode's NMSE change, GAE matches a hand
+computation, a run writes loadable checkpoints and logs, and a resumed run equals an uninterrupted one."""
+
+import csv
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from m2h_ros.core.world.camera import CameraConfig
+from m2h_ros.core.world.episodes import EpisodeConfig
+from m2h_ros.errors import CheckpointError
+from m2h_ros.models.checkpoint import load_separator
+from m2h_ros.models.policy import load_policy
+from m2h_ros.models.separator import SeparatorConfig
+from m2h_ros.training.ppo import PPOConfig, PPOTrainer, gae, nmse, train
+
+TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)  # as separator_path's
+STEPS = 4
+
+
+def tiny(fast_env, separator_path, **overrides) -> PPOConfig:
+    episodes = EpisodeConfig(task="near_target", scene_split="train", sound_split="heard", count=3, near_radius=2.0,
+                             max_steps=STEPS, scene_preset="small", min_source_distance=3.0)
+    values = dict(kind="quality", episodes=episodes, env=fast_env, separator=str(separator_path), n_envs=2,
+                  n_steps=STEPS, updates=4, checkpoint_every=2, threads=1, lr=3e-3)
+    return PPOConfig(**{**values, **overrides})
+
+
+def test_gae_matches_a_hand_computation():
+    rewards = torch.tensor([[1.0], [2.0], [3.0]])
+    values = torch.tensor([[0.5], [1.0], [1.5]])
+    dones = torch.tensor([[False], [True], [False]])
+    next_value = torch.tensor([2.0])
+    g, lam = 0.9, 0.8
+    d2 = 3.0 + g * 2.0 - 1.5
+    d1 = 2.0 - 1.0  # the episode ended: no bootstrap, no carry
+    d0 = 1.0 + g * 1.0 - 0.5
+    expected = torch.tensor([[d0 + g * lam * d1], [d1], [d2]])
+    torch.testing.assert_close(gae(rewards, values, dones, next_value, gamma=g, lam=lam), expected)
+
+
+def test_nmse_is_relative_to_the_target_power():
+    target = np.ones((2, 4, 3), np.float32) * np.array([1.0, 2.0])[:, None, None]
+    np.testing.assert_allclose(nmse(target * 1.5, target), [0.25, 0.25])
+
+
+def test_quality_rewards_telescope_to_the_episode_nmse_change(fast_env, separator_path, folder_library, tmp_path):
+    trainer = PPOTrainer(tiny(fast_env, separator_path), folder_library, out_dir=tmp_path, progress=False)
+    try:
+        trainer._begin()
+        first = trainer.nmse_now.copy()
+        rollout, _, finished = trainer._collect()  # n_steps == episode length: every slot ends at the last step
+    finally:
+        trainer.env.close()
+    assert len(finished) == 2 and all(r["length"] == STEPS for r in finished)
+    total = torch.stack(rollout.rewards).sum(dim=0).numpy()
+    last = np.array([r["final_nmse"] for r in finished])
+    np.testing.assert_allclose(total, first - last - 10.0 * last, rtol=1e-5, atol=1e-6)
+    assert torch.stack(rollout.dones)[-1].all() and not torch.stack(rollout.dones)[:-1].any()
+    assert np.all(first > 0) and np.all(np.isfinite(total))
+
+
+def test_training_writes_checkpoints_and_resumes_exactly(fast_env, separator_path, folder_library, tmp_path):
+    config = tiny(fast_env, separator_path)
+    whole = train(config, folder_library, out_dir=tmp_path / "whole", progress=False, command="test")
+    part = train(config, folder_library, out_dir=tmp_path / "part", progress=False, stop_after=1)
+    assert len(part.history) == 1
+    resumed = train(config, folder_library, out_dir=tmp_path / "part", progress=False)
+    for name, tensor in whole.net.state_dict().items():
+        torch.testing.assert_close(resumed.net.state_dict()[name], tensor, rtol=0, atol=0, msg=name)
+    same = ("env_steps", "episodes", "return_window", "final_nmse_window", "value_loss", "action_loss", "entropy",
+            "refiner_l1")
+    # Weights are bit-identical; logged float64 means may differ in the last bit (numpy's reductions
+    # round with the arrays' memory alignment, and restored arrays are new allocations).
+    for got, expected in zip(resumed.history, whole.history, strict=True):
+        assert [got[k] for k in same] == pytest.approx([expected[k] for k in same], rel=1e-12, abs=0)
+
+    initial = PPOTrainer(config, folder_library, out_dir=tmp_path / "unused", progress=False)
+    initial.env.close()
+    assert any(not torch.equal(t, initial.net.state_dict()[n]) for n, t in whole.net.state_dict().items())
+    loaded = load_policy(whole.checkpoint, policy_kind="quality")
+    for name, tensor in whole.net.state_dict().items():
+        torch.testing.assert_close(loaded.net.state_dict()[name], tensor)
+    assert loaded.metadata["updates"] == 4 and loaded.metadata["command"] == "test"
+    refined = load_separator(tmp_path / "whole" / "separator.pt", expected_config=TINY_SEPARATOR)
+    original = load_separator(separator_path)
+    assert not torch.equal(refined.separator.refiner.body[0].weight, original.separator.refiner.body[0].weight)
+    torch.testing.assert_close(refined.separator.monaural_predictor.head.weight,
+                               original.separator.monaural_predictor.head.weight)  # f^M frozen
+    with open(tmp_path / "whole" / "log.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["update"]) for r in rows] == [1, 2, 3, 4] and int(rows[-1]["env_steps"]) == 4 * 2 * STEPS
+    assert (tmp_path / "whole" / "curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    with pytest.raises(CheckpointError, match="other settings.*lr"):
+        train(dataclasses.replace(config, lr=1e-3), folder_library, out_dir=tmp_path / "part", progress=False)
+
+
+def test_av_navigator_and_novelty_train_with_the_camera(fast_env, separator_path, folder_library, tmp_path):
+    env = dataclasses.replace(fast_env, camera=True, camera_config=CameraConfig(width=64, height=64))
+    for kind in ("av_navigator", "novelty"):
+        config = tiny(fast_env, separator_path, kind=kind, env=env, updates=1)
+        result = train(config, folder_library, out_dir=tmp_path / kind, progress=False)
+        loaded = load_policy(result.checkpoint, policy_kind=kind)
+        assert loaded.config.camera and loaded.config.stop == (kind == "av_navigator")
+        assert loaded.config.inputs == ("mixture" if kind == "av_navigator" else "separation")
+        assert np.isfinite(result.history[-1]["value_loss"]) and not (tmp_path / kind / "separator.pt").exists()
+        if kind == "novelty":  # every step is rewarded 1/sqrt(n) for some n >= 1, so returns are positive
+            assert 0 < result.history[-1]["return_window"] <= STEPS
