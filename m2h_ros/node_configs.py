@@ -61,14 +61,16 @@ class SeparatorNodeConfig(Config):
     checkpoint: str = setting("", "separator checkpoint (.pt); empty: the shipped compact default")
     target_class: str = setting("", "target class; empty: from each episode's EpisodeInfo (set it "
                                 "for a live microphone with no simulator)", choices=TARGET_CLASSES)
-    torch_threads: int = setting(1, "torch threads; at batch 1 one thread is fastest on 2 cores "
-                                 "(about 8 ms vs 21 ms per step with 2, scripts/bench/separator.py)",
-                                 min=1, max=64)
+    torch_threads: int = setting(0, "torch threads; 0: models.threads.inference_threads(1) = 1, "
+                                 "the fastest at batch 1 on 2 cores (fused compact: 3.7 ms vs 4.2 ms "
+                                 "with 2, scripts/bench/separator.py)", min=0, max=64)
 
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
-    policy: str = setting("stand_in_place", "which controller chooses the actions", choices=CONTROLLER_NAMES)
+    policy: str = setting("proximity_prior", "which controller chooses the actions (default: the best "
+                          "training-free baseline in docs/results/baselines_near_target until learned "
+                          "policies are shipped)", choices=CONTROLLER_NAMES)
     checkpoint: str = setting("", "policy checkpoint for learned controllers; empty: shipped default")
     seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
 

@@ -20,11 +20,14 @@ from pathlib import Path
 import numpy as np
 import scipy.signal
 import soundfile as sf
+import torch
 from tqdm import tqdm
 
 from m2h_ros.errors import AudioError, M2HError
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator
+from m2h_ros.models.inference import fuse_for_inference
 from m2h_ros.models.separator import separate_clip
+from m2h_ros.models.threads import inference_threads
 
 # Checkpoint metadata entry giving the mean power of the training mixtures; inputs are scaled to it.
 MIXTURE_POWER_KEY = "mixture_power"
@@ -67,10 +70,11 @@ def separate_recording(loaded: LoadedSeparator, audio: np.ndarray, sample_rate: 
     padded = np.zeros((n_frames * frame, 2), dtype=np.float32)
     padded[: mixture.shape[0]] = mixture * gain
     frames = padded.reshape(n_frames, frame, 2).transpose(0, 2, 1)  # (frames, 2, samples)
+    separator = fuse_for_inference(loaded.separator)  # same numbers, several times faster per frame
     memory = None
     pieces = []
     for clip in tqdm(frames, desc="separating", unit="s", disable=n_frames < PROGRESS_MIN_FRAMES, leave=False):
-        result = separate_clip(loaded.separator, clip[None], class_index, memory=memory, config=config)
+        result = separate_clip(separator, clip[None], class_index, memory=memory, config=config)
         memory = result.memory
         pieces.append(result.waveform[0])
     separated = np.concatenate(pieces)[: mixture.shape[0]] / gain
@@ -106,6 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(inference_threads(1))  # frames go through one at a time
     try:
         loaded = load_separator(args.checkpoint)
         loaded.class_index(args.target)  # fail on an unknown class before reading the audio
@@ -118,6 +124,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except M2HError as exc:
         print(f"m2h-separate: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+    finally:
+        torch.set_num_threads(threads)  # main() also runs in-process (tests): leave the process as found
     return 0
 
 

@@ -11,6 +11,9 @@ from pathlib import Path
 
 import pytest
 
+# Before any test imports torch: idle OpenMP threads sleep instead of spinning on the shared cores.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))  # for the shared helpers module
 
@@ -128,3 +131,11 @@ def small_library(sound_sources, small_data_dir):
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("M2H_DATA_DIR", str(small_data_dir))
         return SoundLibrary.build(SoundLibraryConfig.small(), sources=sound_sources, progress=False)
+
+
+@pytest.fixture(scope="session")
+def fast_acoustics():
+    """Short RIRs, image sources up to order 2, no ray-traced tail: a small scene's bank builds in ~1 s."""
+    from m2h_ros.core.world.acoustics import AcousticsConfig
+
+    return AcousticsConfig(rir_length=0.25, early_length=0.064, ism_max_order=2, tail=False)

@@ -139,6 +139,36 @@ def summarize(results: Iterable[EpisodeResult], *, by: Sequence[str] = GROUP_KEY
     return rows
 
 
+def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metric: str = "si_sdr") -> list[dict]:
+    """Final-step ``metric`` of each other controller minus ``reference``'s on the same episodes, mean
+    and 95% CI per (controller, task, sound split): the paired comparison is much tighter than
+    comparing the two means, since episodes vary far more than controllers do."""
+    if metric not in METRICS:
+        raise ConfigError(f"unknown metric {metric!r}; one of {METRICS}")
+    finals: dict[tuple[str, str, str], dict[str, float]] = {}
+    for r in results:
+        finals.setdefault((r.controller, r.task, r.sound_split), {})[r.episode_id] = r.final(metric)
+    rows = []
+    for (controller, task, split), values in finals.items():
+        base = finals.get((reference, task, split))
+        if controller == reference or base is None:
+            continue
+        shared = sorted(values.keys() & base.keys())
+        mean, half = mean_ci([values[e] - base[e] for e in shared])
+        rows.append({"controller": controller, "task": task, "sound_split": split, "reference": reference,
+                     "metric": metric, "episodes": len(shared), "difference": mean, "ci95": half})
+    return rows
+
+
+def paired_table(rows: Sequence[dict]) -> str:
+    head = ["controller", "task", "sound_split", "episodes", "difference (mean ± 95% CI)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        lines.append(f"| {row['controller']} | {row['task']} | {row['sound_split']} | {row['episodes']} | "
+                     f"{row['difference']:+.2f} ± {row['ci95']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
 def _cell(value) -> str:
     if value is None:
         return "-"
@@ -158,9 +188,13 @@ def markdown_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> s
 
 
 def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, title: str = "Results",
-                  meta: dict | None = None, plot: bool = True) -> dict[str, Path]:
+                  meta: dict | None = None, plot: bool = True, command: str | None = None,
+                  setup: str | None = None, reference: str | None = None) -> dict[str, Path]:
     """Write results.md, results.csv (one row per episode), results.json (episodes + summary + meta)
-    and si_sdr_vs_step.png into ``out_dir``; returns the paths by kind."""
+    and si_sdr_vs_step.png into ``out_dir``; returns the paths by kind. ``command``, the one line that
+    reproduces the results, heads the Markdown table, with ``setup`` (the models and data it ran on,
+    which the command alone does not pin); with ``reference`` (a controller's name), the
+    Markdown also has every other controller's paired SI-SDR (GT phase) difference to it."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows = summarize(results)
@@ -168,7 +202,11 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
     note = ("Final-step scores, mean ± 95% CI over episodes. SI-SDR (GT phase): the estimate rebuilt "
             "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
             "(mixture phase): rebuilt with the mixture's phase (deployable).\n")
-    paths["markdown"].write_text(f"# {title}\n\n{note}\n{markdown_table(rows)}")
+    how = (f"Command: `{command}`\n\n" if command else "") + (f"Setup: {setup}\n\n" if setup else "")
+    paired = paired_differences(results, reference=reference) if reference else []
+    versus = (f"\nFinal-step SI-SDR (dB, GT phase) minus {reference}'s on the same episodes:\n\n"
+              f"{paired_table(paired)}") if paired else ""
+    paths["markdown"].write_text(f"# {title}\n\n{how}{note}\n{markdown_table(rows)}{versus}")
     with paths["csv"].open("w", newline="") as stream:
         writer = csv.writer(stream)
         writer.writerow(["episode_id", *GROUP_KEYS, "scene_id", "target_class", "steps",
@@ -177,7 +215,7 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
             writer.writerow([r.episode_id, r.controller, r.task, r.sound_split, r.scene_id, r.target_class,
                              r.steps, *(f"{r.final(m):.6f}" for m in METRICS), int(r.success),
                              f"{r.spl:.6f}", f"{r.path_length:.3f}", f"{r.shortest_path:.3f}"])
-    paths["json"].write_text(json.dumps({"meta": meta or {}, "summary": rows,
+    paths["json"].write_text(json.dumps({"meta": meta or {}, "summary": rows, "paired": paired,
                                          "episodes": [r.to_dict() for r in results]}, indent=1))
     if plot and results:
         paths["plot"] = plot_si_sdr_vs_step(results, out / "si_sdr_vs_step.png", title=title)
@@ -204,6 +242,9 @@ def plot_si_sdr_vs_step(results: Sequence[EpisodeResult], path: str | Path, *, t
     for r in results:
         groups.setdefault((r.controller, r.task, r.sound_split), []).append(r)
     fig, ax = plt.subplots(figsize=(7, 4.2))
+    # One colour per controller, one line style per task and split, so up to 10 controllers stay apart.
+    colours = {c: plt.cm.tab10(i % 10) for i, c in enumerate(dict.fromkeys(k[0] for k in sorted(groups)))}
+    styles = {k: ("-", "--", ":", "-.")[i % 4] for i, k in enumerate(dict.fromkeys(k[1:] for k in sorted(groups)))}
     for (controller, task, split), members in sorted(groups.items()):
         length = min(len(m.si_sdr) for m in members)  # Stop can end far-target episodes early
         per_step = np.array([m.si_sdr[:length] for m in members])
@@ -211,8 +252,10 @@ def plot_si_sdr_vs_step(results: Sequence[EpisodeResult], path: str | Path, *, t
         mean = np.array([s[0] for s in stats_])
         half = np.array([s[1] for s in stats_])
         steps = np.arange(length)
-        ax.plot(steps, mean, label=f"{controller} ({task}, {split}, n={len(members)})")
-        ax.fill_between(steps, mean - half, mean + half, alpha=0.2)
+        colour = colours[controller]
+        ax.plot(steps, mean, color=colour, linestyle=styles[task, split],
+                label=f"{controller} ({task}, {split}, n={len(members)})")
+        ax.fill_between(steps, mean - half, mean + half, color=colour, alpha=0.1)
     ax.set_xlabel("step")
     ax.set_ylabel("SI-SDR (dB, GT phase)")
     ax.set_title(title)

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, from_slices, rebuild_with_phase, stft, to_slices
+from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, from_slices, rebuild_with_phase, stft
 from m2h_ros.errors import AudioError, ConfigError
 from m2h_ros.models.unet import MemoryRefiner, UNet
 
@@ -124,7 +124,11 @@ class Separator(nn.Module):
     @staticmethod
     def _with_class_plane(features: torch.Tensor, class_index: torch.Tensor) -> torch.Tensor:
         value = class_index.to(features.dtype).reshape(-1, 1, 1, 1) + 1.0
-        return torch.cat((features, value.expand(features.shape[0], 1, *features.shape[2:])), dim=1)
+        # The plane takes the features' memory layout (e.g. channels_last), so cat keeps it and the
+        # convolutions get the layout they run fastest in, without a conversion.
+        plane = torch.empty_like(features[:, :1])
+        plane.copy_(value.expand_as(plane))
+        return torch.cat((features, plane), dim=1)
 
     def separate_binaural(self, mixture: torch.Tensor, class_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """f^B: mixture magnitude (B, 2S, H, W) -> (mask, separated binaural magnitude)."""
@@ -139,7 +143,10 @@ class Separator(nn.Module):
         """f^M: separated binaural magnitude (B, 2S, H, W) -> monaural magnitude (B, S, H, W), as a
         predicted gain times the ear average (channel-major layout: ears are the leading S-blocks)."""
         score = self.monaural_predictor(self._with_class_plane(torch.log1p(binaural), class_index))
-        ear_mean = binaural.reshape(binaural.shape[0], N_EARS, -1, *binaural.shape[2:]).mean(dim=1)
+        # (left + right) * 0.5 is bit-identical to a mean over the ears and, unlike a reduction over a
+        # reshaped channel axis, costs no copy in channels_last.
+        monos = self.config.monaural_channels
+        ear_mean = (binaural[:, :monos] + binaural[:, monos:]) * 0.5
         return F.softplus(score) * _INV_LN2 * ear_mean
 
     def refine(self, monaural: torch.Tensor, memory: torch.Tensor | None,
@@ -173,6 +180,17 @@ class ClipSeparation:
     memory: torch.Tensor  # (B, S, H, W) refined estimate to pass to the next step
 
 
+def network_input(spec: np.ndarray, *, n_slices: int = DEFAULT_STFT.n_freq_slices) -> torch.Tensor:
+    """The networks' input for a complex spectrogram (B, C, F, T): ``to_slices(|spec|)``, (B, C * n_slices,
+    F // n_slices, T) float32, as a channels_last CPU tensor (the layout the fused convolutions compute
+    in), written in one pass: no separate magnitude, slicing copy and layout conversion."""
+    batch, channels, n_freq, n_frames = spec.shape
+    height = n_freq // n_slices
+    out = np.empty((batch, height, n_frames, channels, n_slices), dtype=np.float32)
+    np.abs(spec.reshape(batch, channels, n_slices, height, n_frames).transpose(0, 3, 4, 1, 2), out=out)
+    return torch.from_numpy(out).reshape(batch, height, n_frames, channels * n_slices).permute(0, 3, 1, 2)
+
+
 def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int | np.ndarray, *,
                   memory: torch.Tensor | None = None, reset: np.ndarray | None = None,
                   config: StftConfig = DEFAULT_STFT) -> ClipSeparation:
@@ -180,7 +198,11 @@ def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int |
 
     numpy -> torch happens once, on the sliced mixture magnitude (after the core STFT); torch -> numpy
     once, on the refined estimate (before un-slicing and the mixture-phase inverse STFT). The memory
-    stays a tensor on the separator's device. Runs without autograd; call ``separator.eval()`` first.
+    stays a tensor on the separator's device. Runs under ``torch.inference_mode()`` (so the memory is
+    an inference tensor: pass it back here, do not train on it); call ``separator.eval()`` first, or
+    pass ``models.inference.fuse_for_inference(separator)`` for the fast path (same numbers). The
+    network input is channels_last, the layout the fused convolutions compute in; the caller picks
+    the torch thread count (``models.threads.inference_threads``).
     """
     mixture = np.asarray(binaural, dtype=np.float32)
     if mixture.ndim != 3 or mixture.shape[1] != N_EARS:
@@ -188,12 +210,13 @@ def separate_clip(separator: Separator, binaural: np.ndarray, class_index: int |
     separator.config.check_stft(config)
     spec = stft(mixture, config=config)  # (B, 2, F, T) complex64
     device = next(separator.parameters()).device
-    sliced = torch.from_numpy(np.ascontiguousarray(to_slices(np.abs(spec), n_slices=config.n_freq_slices)))
+    sliced = network_input(spec, n_slices=config.n_freq_slices)
     classes = torch.as_tensor(np.broadcast_to(np.asarray(class_index), (mixture.shape[0],)).copy(), device=device)
     reset_t = None if reset is None else torch.as_tensor(np.asarray(reset, dtype=bool), device=device)
-    with torch.no_grad():
+    with torch.inference_mode():
         step = separator(sliced.to(device), classes, memory, reset_t)
     refined = step.refined.cpu().numpy()
     magnitude = from_slices(refined, n_slices=config.n_freq_slices)[:, 0]  # (B, F, T)
-    waveform = rebuild_with_phase(magnitude, spec.mean(axis=1), config=config, length=mixture.shape[-1])
+    ear_mean = (spec[:, 0] + spec[:, 1]) * 0.5  # = spec.mean(axis=1) bit for bit, without the slow complex reduction
+    waveform = rebuild_with_phase(magnitude, ear_mean, config=config, length=mixture.shape[-1])
     return ClipSeparation(magnitude, waveform, step.refined)

@@ -27,7 +27,7 @@ from m2h_ros.ros import convert  # noqa: E402
 from m2h_ros.ros.params import declare_config  # noqa: E402
 from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events  # noqa: E402
 from m2h_ros.ros.spin import run_node  # noqa: E402
-from m2h_ros.ros.sync import StepAssembler  # noqa: E402
+from m2h_ros.ros.sync import EpisodeGate, StepAssembler  # noqa: E402
 
 F, T = DEFAULT_STFT.n_freq, DEFAULT_STFT.n_frames
 
@@ -40,7 +40,8 @@ class ControllerNode(Node):
         self.controller = SingleEpisode(make_controller(cfg.policy, 1, seed=cfg.seed, checkpoint=cfg.checkpoint))
         camera = self.controller.controller.uses_camera
         parts = {"audio", "odom", "binaural", "monaural", "refined"} | ({"rgb", "depth"} if camera else set())
-        self.assembler = StepAssembler(parts, self.on_step)
+        self.gate = EpisodeGate(self.on_step)  # steps wait for their episode's info
+        self.assembler = StepAssembler(parts, self.gate.step)
         self.pub_command = self.create_publisher(MotionCommand, topics.COMMAND, STEP,
                                                  event_callbacks=publisher_events(self.get_logger(), topics.COMMAND))
 
@@ -48,7 +49,7 @@ class ControllerNode(Node):
             self.create_subscription(kind, topic, callback, qos,
                                      event_callbacks=subscription_events(self.get_logger(), topic))
 
-        subscribe(EpisodeInfo, topics.EPISODE, self.on_episode, LATCHED)
+        subscribe(EpisodeInfo, topics.EPISODE, self.gate.add_info, LATCHED)
         subscribe(BinauralAudio, topics.AUDIO, self.on_audio)
         subscribe(Odometry, topics.ODOM, lambda m: self.assembler.add_stamped(
             convert.nanoseconds_of(m.header.stamp), "odom", convert.pose_from_odometry(m)))
@@ -62,17 +63,9 @@ class ControllerNode(Node):
             for topic, part in ((topics.RGB, "rgb"), (topics.DEPTH, "depth")):
                 subscribe(Image, topic, lambda m, part=part: self.assembler.add_stamped(
                     convert.nanoseconds_of(m.header.stamp), part, convert.image_from_msg(m)))
-        self.episodes: dict[str, EpisodeInfo] = {}
-        self.parked: list[tuple[tuple[str, int], dict]] = []
         self.episode_id: str | None = None
         self.stopped = False  # far-target: the last command was Stop, so the next step is the last
         self.get_logger().info(f"ready: controller {self.controller.name}")
-
-    def on_episode(self, msg: EpisodeInfo) -> None:
-        self.episodes[msg.episode_id] = msg
-        parked, self.parked = self.parked, []
-        for key, parts in parked:
-            self.on_step(key, parts)
 
     def on_audio(self, msg: BinauralAudio) -> None:
         audio = convert.audio_from_msg(msg, sample_rate=DEFAULT_STFT.sample_rate, samples=DEFAULT_STFT.clip_samples)
@@ -80,12 +73,8 @@ class ControllerNode(Node):
         self.assembler.add(key, "audio", audio)
         self.assembler.bind(convert.nanoseconds_of(msg.header.stamp), key)
 
-    def on_step(self, key: tuple[str, int], parts: dict) -> None:
+    def on_step(self, key: tuple[str, int], parts: dict, info: EpisodeInfo) -> None:
         episode_id, step = key
-        info = self.episodes.get(episode_id)
-        if info is None:  # topics are not ordered: the step waits for its episode's info
-            self.parked.append((key, parts))
-            return
         if episode_id != self.episode_id:
             self.controller.reset(convert.episode_start_from_msg(info))
             self.episode_id, self.stopped = episode_id, False

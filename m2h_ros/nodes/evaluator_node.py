@@ -23,7 +23,7 @@ from m2h_ros.ros import convert
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
 from m2h_ros.ros.spin import run_node
-from m2h_ros.ros.sync import StepAssembler
+from m2h_ros.ros.sync import EpisodeGate, StepAssembler
 
 N, F, T = DEFAULT_STFT.clip_samples, DEFAULT_STFT.n_freq, DEFAULT_STFT.n_frames
 HELD = -1  # in results: no command arrived for the step in time (free-running mode held the robot)
@@ -33,7 +33,8 @@ class EvaluatorNode(Node):
     def __init__(self):
         super().__init__("evaluator_node")
         self.config: EvaluatorConfig = declare_config(self, EvaluatorConfig)
-        self.assembler = StepAssembler({"truth", "refined", "audio", "pose"}, self.on_step)
+        self.gate = EpisodeGate(self.on_step)  # steps wait for their episode's info
+        self.assembler = StepAssembler({"truth", "refined", "audio", "pose"}, self.gate.step)
         self.pub_step = self.create_publisher(StepScore, topics.STEP_SCORE, STEP,
                                               event_callbacks=publisher_events(self.get_logger(), topics.STEP_SCORE))
         self.pub_episode = self.create_publisher(EpisodeScore, topics.EPISODE_SCORE, STEP,
@@ -44,7 +45,7 @@ class EvaluatorNode(Node):
             self.create_subscription(kind, topic, callback, qos,
                                      event_callbacks=subscription_events(self.get_logger(), topic))
 
-        subscribe(EpisodeInfo, topics.EPISODE, self.on_episode, LATCHED)
+        subscribe(EpisodeInfo, topics.EPISODE, self.gate.add_info, LATCHED)
         subscribe(GroundTruth, topics.GROUND_TRUTH, lambda m: self.assembler.add(
             (m.episode_id, m.step), "truth", m))
         subscribe(Spectrogram, topics.REFINED, lambda m: self.assembler.add(
@@ -54,26 +55,14 @@ class EvaluatorNode(Node):
                                                                     samples=N)))
         subscribe(AgentPose, topics.AGENT_POSE, lambda m: self.assembler.add((m.episode_id, m.step), "pose", m))
         subscribe(MotionCommand, topics.COMMAND, lambda m: self.controllers.setdefault(m.episode_id, m.controller))
-        self.episodes: dict[str, EpisodeInfo] = {}
-        self.parked: list[tuple[tuple[str, int], dict]] = []
         self.trackers: dict[str, EpisodeTracker] = {}
         self.controllers: dict[str, str] = {}
         self.results: list[EpisodeResult] = []
         self.output = Path(self.config.output_dir) if self.config.output_dir else None
         self.get_logger().info(f"ready: results to {self.output or '(nowhere: output_dir is empty)'}")
 
-    def on_episode(self, msg: EpisodeInfo) -> None:
-        self.episodes[msg.episode_id] = msg
-        parked, self.parked = self.parked, []
-        for key, parts in parked:
-            self.on_step(key, parts)
-
-    def on_step(self, key: tuple[str, int], parts: dict) -> None:
+    def on_step(self, key: tuple[str, int], parts: dict, info: EpisodeInfo) -> None:
         episode_id, step = key
-        info = self.episodes.get(episode_id)
-        if info is None:  # topics are not ordered: the step waits for its episode's info
-            self.parked.append((key, parts))
-            return
         truth_msg = parts["truth"]
         truth = convert.truth_from_msg(truth_msg, samples=N)
         scores = score_magnitude(parts["refined"][None], parts["audio"][None], truth, config=DEFAULT_STFT)

@@ -21,6 +21,7 @@ from rclpy.node import Node  # noqa: E402
 from m2h_ros import topics  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
+from m2h_ros.models.threads import inference_threads  # noqa: E402
 from m2h_ros.node_configs import SeparatorNodeConfig  # noqa: E402
 from m2h_ros.ros import convert  # noqa: E402
 from m2h_ros.ros.params import declare_config  # noqa: E402
@@ -34,7 +35,8 @@ class SeparatorNode(Node):
     def __init__(self):
         super().__init__("separator_node")
         self.config: SeparatorNodeConfig = declare_config(self, SeparatorNodeConfig)
-        torch.set_num_threads(self.config.torch_threads)
+        self.threads = self.config.torch_threads or inference_threads(1)
+        torch.set_num_threads(self.threads)
         loaded = load_separator(self.config.checkpoint or DEFAULT_SEPARATOR_CHECKPOINT)
         self.runner = SeparatorRunner(loaded, 1)
         self.stft = loaded.stft
@@ -57,7 +59,7 @@ class SeparatorNode(Node):
         self.episode_id: str | None = None
         self.latencies: list[float] = []
         self.get_logger().info(f"ready: separator {loaded.path.name} ({loaded.config.unet_channels}), "
-                               f"{self.config.torch_threads} torch thread(s)")
+                               f"{self.threads} torch thread(s)")
 
     def on_episode(self, msg: EpisodeInfo) -> None:
         self.classes[msg.episode_id] = msg.target_class

@@ -3,11 +3,14 @@
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-# Step streams: nothing may be dropped. Keep-all, because a consumer outside the lockstep (the
-# evaluator scores while the next steps run) can fall several steps behind; the lockstep bounds it:
-# the simulator waits for each episode's score before starting the next.
-STEP = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
-                  durability=DurabilityPolicy.VOLATILE)
+# Step streams: nothing may be dropped. Transient-local with a deep history: a reader that matches
+# a writer late (discovery between processes can lag seconds behind what the graph API already
+# shows) still receives the steps published before, and a consumer outside the lockstep (the
+# evaluator scores while the next steps run) may fall behind. The lockstep bounds both: the simulator
+# waits for each episode's score before the next, and an episode has at most 101 observations.
+STEP_HISTORY = 128
+STEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STEP_HISTORY, reliability=ReliabilityPolicy.RELIABLE,
+                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Episode info is latched so a node that starts late still learns the current episode.
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                      reliability=ReliabilityPolicy.RELIABLE,

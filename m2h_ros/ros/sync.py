@@ -49,3 +49,26 @@ class StepAssembler:
     def _trim(self, table: OrderedDict) -> None:
         while len(table) > self.max_pending:  # steps that can never complete (a node restarted)
             table.popitem(last=False)
+
+
+class EpisodeGate:
+    """EpisodeInfo by episode id, for steps that need it: a step that completes before its episode's
+    (latched, but separately delivered) info waits for it; ``on_step(key, parts, info)`` runs then."""
+
+    def __init__(self, on_step: Callable[[StepKey, dict[str, Any], Any], None]) -> None:
+        self.on_step = on_step
+        self.infos: dict[str, Any] = {}
+        self.parked: list[tuple[StepKey, dict[str, Any]]] = []
+
+    def add_info(self, info: Any) -> None:
+        self.infos[info.episode_id] = info
+        parked, self.parked = self.parked, []
+        for key, parts in parked:
+            self.step(key, parts)
+
+    def step(self, key: StepKey, parts: dict[str, Any]) -> None:
+        info = self.infos.get(key[0])
+        if info is None:
+            self.parked.append((key, parts))
+        else:
+            self.on_step(key, parts, info)

@@ -1,14 +1,18 @@
 """Simulator throughput: environment steps/s for 1 and 16 batched envs, with and without camera.
 
     python scripts/bench/sim.py [--steps 200] [--threads 2] [--episodes 1000] [--build-workers 2]
-                                [--fresh-build]
+                                [--repeats 3] [--rir-length 0.5] [--rir-spectra-mib 0] [--fresh-build]
 
 Uses the test split's default scenes and the default acoustics; builds (or reuses) their RIR banks
 under data_dir() first and reports their size per scene (and the build time of what was missing);
 --fresh-build also times a full build of every scene into a temporary cache with
 scripts/bench/acoustics.py. Sound library: the full default
 one if it is built, else the --small one (built if missing); the output says which. Each throughput
-case runs in a fresh process with warm caches and reports its peak RSS. Last, the sanity figure:
+case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS and the
+load average before it (other jobs on the cores slow every figure). Then the cost of a fresh render:
+CPU per env step of 16 envs that render every step (no pose cache, camera on, 1 thread) beside the
+bare FFT work such a step needs (RIR rffts, inverse FFTs, STFT), timed in the same process, best of 5
+blocks each. Last, the sanity figure:
 over the near-target, unheard test episodes, the raw mixture's SI-SDR as an estimate of the target,
 at the start pose and at the target's node (heading 0); the second must be higher.
 """
@@ -23,8 +27,10 @@ import os
 import resource
 import time
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
+from scipy import fft as sfft
 
 from m2h_ros.core.audio.metrics import si_sdr
 from m2h_ros.core.audio.stft import rebuild_ground_truth_phase, stft
@@ -82,13 +88,13 @@ def fresh_builds(workers: int) -> None:
             os.environ["M2H_DATA_DIR"] = saved
 
 
-def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: int,
+def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: int, spectra_mib: float,
                acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
     """Runs in a fresh process: steps/s of one BatchEnv with warm caches, and the peak RSS."""
     library, _ = open_library()
     episodes = episodes_for(episode_config, library)
     env = BatchEnv(episodes, library, n_envs=n_envs, threads=threads, pose_cache=pose_cache,
-                   config=EnvConfig(camera=camera, acoustics=acoustics))
+                   rir_spectra_mib=spectra_mib, config=EnvConfig(camera=camera, acoustics=acoustics))
     env.prepare(progress=False)
     env.reset()
     actions = np.random.default_rng(0).integers(4, size=(steps + 20, n_envs))
@@ -100,7 +106,49 @@ def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: 
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     env.close()
     queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps),
-               resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, env.pose_cache_hit_rate))
+               resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, env.pose_cache_hit_rate,
+               env.rir_spectra_hit_rate))
+
+
+def _best_cpu_ms(work, repeats: int = 5) -> float:
+    """Least CPU ms of ``repeats`` calls of ``work`` (the least disturbed by other jobs)."""
+    best = np.inf
+    for _ in range(repeats):
+        start = time.process_time()
+        work()
+        best = min(best, time.process_time() - start)
+    return 1e3 * best
+
+
+def fresh_render(acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
+    """Runs in a fresh process: CPU per env step when every step renders afresh, and the bare FFT
+    work of one such step, both per env step of 16 envs (camera on, 1 thread)."""
+    library, _ = open_library()
+    env = BatchEnv(episodes_for(episode_config, library), library, n_envs=16, pose_cache=0,
+                   config=EnvConfig(camera=True, acoustics=acoustics))
+    env.prepare(progress=False)
+    env.reset()
+    actions = iter(np.random.default_rng(0).integers(1, 4, size=(200, env.n_envs)))   # no Stop
+    block = 20
+
+    def steps() -> None:
+        for _ in range(block):
+            env.step(next(actions))
+    steps()
+    fresh = _best_cpu_ms(steps) / (block * env.n_envs)
+    # The same transforms on arrays of the same shapes, batched over the 16 envs: every source's
+    # (2, T) RIR forward at the convolution length, target + mixture (4 rows) back, the STFT frames.
+    stft_config, rng = env.config.stft, np.random.default_rng(0)
+    n_fft = sfft.next_fast_len(env.n_samples + acoustics.n_taps - 1, real=True)
+    rirs = rng.standard_normal((env.n_envs, env.max_sources * 2, n_fft)).astype(np.float32)
+    renders = sfft.rfft(rng.standard_normal((env.n_envs, 4, n_fft)).astype(np.float32), axis=-1)
+    frames = rng.standard_normal((env.n_envs, 2 * stft_config.n_frames, stft_config.n_fft)).astype(np.float32)
+    parts = {"RIR rfft": lambda: sfft.rfft(rirs, axis=-1),
+             "inverse": lambda: sfft.irfft(renders, n_fft, axis=-1),
+             "STFT": lambda: sfft.rfft(frames, axis=-1)}
+    fft = {name: _best_cpu_ms(work) / env.n_envs for name, work in parts.items()}
+    env.close()
+    queue.put((fresh, fft, n_fft))
 
 
 def sanity(library: SoundLibrary, episode_config: EpisodeConfig, acoustics: AcousticsConfig,
@@ -131,6 +179,47 @@ def sanity(library: SoundLibrary, episode_config: EpisodeConfig, acoustics: Acou
         print(f"  {name:34s} start pose {start:7.2f} dB   target node {target:7.2f} dB   {verdict}")
 
 
+def in_process(target, *target_args):
+    """``target(*target_args, queue)`` in a fresh (spawned) process; what it put on the queue."""
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    worker = context.Process(target=target, args=(*target_args, queue))
+    worker.start()
+    while True:   # a worker that dies (e.g. on import) never puts: say so instead of waiting forever
+        try:
+            result = queue.get(timeout=1.0)
+            break
+        except Empty:
+            if not worker.is_alive():
+                raise RuntimeError(f"{target.__name__} worker exited with code {worker.exitcode}") from None
+    worker.join()
+    return result
+
+
+def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_config: EpisodeConfig) -> None:
+    print(f"throughput ({args.steps} timed batch steps after 20 warm ones, uniformly random actions, "
+          f"threads={args.threads}, pose cache {args.pose_cache}/slot, RIR spectrum cache "
+          f"{args.rir_spectra_mib:g} MiB, RIR banks and views warm, {acoustics.rir_length} s RIRs):")
+    rates = {}
+    for camera in (False, True):
+        for n_envs in (1, 16):
+            runs = []
+            for _ in range(args.repeats):
+                # Other jobs on the cores change these figures by tens of percent: say how busy it was.
+                load = os.getloadavg()[0]
+                runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads, args.pose_cache,
+                                         args.rir_spectra_mib, acoustics, episode_config), load))
+            rate, cpu_ms, rss, hit_rate, spectra_rate, load = zip(*runs)
+            rates[n_envs, camera] = np.median(rate)
+            print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: "
+                  f"{' / '.join(f'{r:.0f}' for r in rate)} env steps/s (aggregate; median {np.median(rate):.0f}, "
+                  f"spread {min(rate):.0f}-{max(rate):.0f}), {min(cpu_ms):.2f}-{max(cpu_ms):.2f} ms CPU per "
+                  f"env step, pose-cache hits {100 * hit_rate[0]:.0f}%, RIR spectrum hits "
+                  f"{100 * spectra_rate[0]:.0f}%, peak RSS {max(rss):.0f} MiB, load average before "
+                  f"{' / '.join(f'{x:.1f}' for x in load)}")
+    print(f"  16 batched / 1 env, camera on: {rates[16, True] / rates[1, True]:.1f}x (medians)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200, help="timed batch steps per case")
@@ -141,9 +230,16 @@ def main() -> None:
     parser.add_argument("--build-workers", type=int, default=2, help="processes building RIR banks")
     parser.add_argument("--fresh-build", action="store_true",
                         help="also time a from-scratch bank build of every scene (minutes)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs of each throughput case")
+    parser.add_argument("--rir-length", type=float, default=None,
+                        help="RIR length in s (default: the acoustics' default); other lengths build their banks")
+    parser.add_argument("--rir-spectra-mib", type=float, default=0.0,
+                        help="BatchEnv RIR spectrum cache (MiB, 0: off) in the throughput cases")
+    parser.add_argument("--only-fresh", action="store_true",
+                        help="only the fresh-render figure (also runs against older BatchEnv versions)")
     parser.add_argument("--skip-sanity", action="store_true")
     args = parser.parse_args()
-    acoustics = AcousticsConfig()
+    acoustics = AcousticsConfig() if args.rir_length is None else AcousticsConfig(rir_length=args.rir_length)
     library, which = open_library()
     print(f"sound library: {which}, {sum(len(library.infos(s)) for s in ('heard', 'unheard'))} clips")
     build_banks(acoustics, args.build_workers)
@@ -152,27 +248,15 @@ def main() -> None:
     episode_config = EpisodeConfig(task="near_target", scene_split=SPLIT, sound_split="unheard",
                                    count=args.episodes)
     episodes_for(episode_config, library)   # cached once, before the workers read it
-    context = multiprocessing.get_context("spawn")
-    # Other jobs on the 2 cores change these figures by tens of percent: say how busy the machine was.
-    print(f"load average before the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
-    print(f"throughput ({args.steps} timed batch steps after 20 warm ones, uniformly random actions, "
-          f"threads={args.threads}, pose cache {args.pose_cache}/slot, RIR banks and views warm):")
-    rates = {}
-    for camera in (False, True):
-        for n_envs in (1, 16):
-            queue = context.Queue()
-            worker = context.Process(target=throughput, args=(n_envs, camera, args.steps, args.threads,
-                                                              args.pose_cache, acoustics, episode_config,
-                                                              queue))
-            worker.start()
-            rate, cpu_ms, rss, hit_rate = queue.get()
-            worker.join()
-            rates[n_envs, camera] = rate
-            print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: {rate:8.0f} env steps/s "
-                  f"(aggregate), {cpu_ms:.2f} ms CPU per env step, pose-cache hits {100 * hit_rate:.0f}%, "
-                  f"peak RSS {rss:.0f} MiB")
-    print(f"  16 batched / 1 env, camera on: {rates[16, True] / rates[1, True]:.1f}x")
-    if not args.skip_sanity:
+    if not args.only_fresh:
+        throughputs(args, acoustics, episode_config)
+    load = os.getloadavg()[0]
+    fresh, fft, n_fft = in_process(fresh_render, acoustics, episode_config)
+    print(f"fresh render (16 envs rendering every step, camera on, 1 thread, best of 5 blocks, load "
+          f"average {load:.1f}): {fresh:.2f} ms CPU per env step; its bare FFT work "
+          f"{sum(fft.values()):.2f} ms (" + ", ".join(f"{k} {v:.2f}" for k, v in fft.items())
+          + f"; convolution length {n_fft}), so {fresh - sum(fft.values()):.2f} ms is not FFT")
+    if not (args.skip_sanity or args.only_fresh):
         sanity(library, episode_config, acoustics, args.threads)
 
 

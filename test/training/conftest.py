@@ -7,7 +7,6 @@ from pathlib import Path
 import pytest
 
 from m2h_ros.core.sounds.sources import sources_dir
-from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.training.separator_data import StreamConfig
@@ -35,10 +34,9 @@ def _data_dir(monkeypatch, training_data_dir):
 
 
 @pytest.fixture(scope="session")
-def fast_env() -> EnvConfig:
-    """Short RIRs, image sources up to order 2, no tail: a small scene's source node in ~0.02 s."""
-    return EnvConfig(camera=False, acoustics=AcousticsConfig(rir_length=0.25, early_length=0.064,
-                                                             ism_max_order=2, tail=False))
+def fast_env(fast_acoustics) -> EnvConfig:
+    """Fast acoustics (test/conftest.py), no camera: a small scene's source node in ~0.02 s."""
+    return EnvConfig(camera=False, acoustics=fast_acoustics)
 
 
 @pytest.fixture(scope="session")

@@ -19,6 +19,7 @@ Layouts (all functions are batched over leading dimensions):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from typing import Any, TypeVar
 
 import numpy as np
@@ -109,6 +110,26 @@ class StftConfig:
 DEFAULT_STFT = StftConfig()
 
 
+@lru_cache(maxsize=16)
+def _cached_window(config: StftConfig, dtype: np.dtype) -> np.ndarray:
+    """Read-only ``config.window()`` in ``dtype``: building it costs more than a 1 s clip's FFTs."""
+    window = config.window().astype(dtype)
+    window.flags.writeable = False
+    return window
+
+
+@lru_cache(maxsize=16)
+def _ola_envelope(config: StftConfig, n_frames: int, dtype: np.dtype) -> np.ndarray:
+    """Read-only overlap-added square of the ``dtype`` window, in float64, ``n_frames`` frames, untrimmed."""
+    window_sq = _cached_window(config, dtype).astype(np.float64) ** 2
+    hop, n_fft = config.hop_length, config.n_fft
+    envelope = np.zeros(n_fft + hop * (n_frames - 1))
+    for t in range(n_frames):
+        envelope[t * hop : t * hop + n_fft] += window_sq
+    envelope.flags.writeable = False
+    return envelope
+
+
 def _check_finite(x: np.ndarray, what: str) -> None:
     if not np.all(np.isfinite(x)):
         raise AudioError(f"{what} holds NaN or infinite values")
@@ -128,7 +149,7 @@ def stft(waveform: np.ndarray, *, config: StftConfig = DEFAULT_STFT) -> np.ndarr
     if x.shape[-1] < config.n_fft:
         raise AudioError(f"stft needs at least n_fft={config.n_fft} samples after padding, got {x.shape[-1]}")
     frames = np.lib.stride_tricks.sliding_window_view(x, config.n_fft, axis=-1)[..., :: config.hop_length, :]
-    spec = scipy.fft.rfft(frames * config.window().astype(x.dtype), axis=-1)
+    spec = scipy.fft.rfft(frames * _cached_window(config, x.dtype), axis=-1)
     return np.swapaxes(spec, -1, -2)
 
 
@@ -144,28 +165,23 @@ def istft(spec: np.ndarray, *, config: StftConfig = DEFAULT_STFT, length: int | 
         raise AudioError(f"istft expects (..., {config.n_freq}, T) spectrograms, got shape {spec.shape}")
     _check_finite(spec, "istft input")
     real_dtype = np.float32 if spec.dtype == np.complex64 else np.float64
-    window = config.window().astype(real_dtype)
+    window = _cached_window(config, np.dtype(real_dtype))
     n_frames, hop, n_fft = spec.shape[-1], config.hop_length, config.n_fft
     frames = scipy.fft.irfft(np.swapaxes(spec, -1, -2), n=n_fft, axis=-1) * window  # (..., T, n_fft)
-    # Overlap-add chunk by chunk: each frame is cut into ceil(n_fft / hop) hop-long pieces, and piece
-    # j of frame t lands at (t + j) * hop, so one vectorised add per piece index does the whole job.
+    # Overlap-add chunk by chunk: each frame is cut into ceil(n_fft / hop) hop-long pieces (the last
+    # one shorter), and piece j of frame t lands at (t + j) * hop, so one vectorised add per piece
+    # index does the whole job.
     n_chunks = -(-n_fft // hop)
-    chunked = np.pad(frames, [(0, 0)] * (frames.ndim - 1) + [(0, n_chunks * hop - n_fft)])
-    chunked = chunked.reshape(*frames.shape[:-1], n_chunks, hop)
-    total = (n_frames + n_chunks - 1) * hop
     out = np.zeros((*frames.shape[:-2], n_frames + n_chunks - 1, hop), dtype=real_dtype)
-    envelope = np.zeros((n_frames + n_chunks - 1, hop), dtype=np.float64)
-    window_chunks = np.pad(window.astype(np.float64) ** 2, (0, n_chunks * hop - n_fft)).reshape(n_chunks, hop)
     for j in range(n_chunks):
-        out[..., j : j + n_frames, :] += chunked[..., j, :]
-        envelope[j : j + n_frames] += window_chunks[j]
-    out = out.reshape(*out.shape[:-2], total)[..., : n_fft + hop * (n_frames - 1)]
-    envelope = envelope.reshape(total)[: n_fft + hop * (n_frames - 1)]
+        width = min(hop, n_fft - j * hop)
+        out[..., j : j + n_frames, :width] += frames[..., j * hop : j * hop + width]
+    out = out.reshape(*out.shape[:-2], -1)[..., : n_fft + hop * (n_frames - 1)]
     start = n_fft // 2 if config.center else 0
     stop = out.shape[-1] - (n_fft // 2 if config.center else 0)
     if length is not None:
         stop = start + length
-    out, envelope = out[..., start:stop], envelope[start:stop]
+    out, envelope = out[..., start:stop], _ola_envelope(config, n_frames, np.dtype(real_dtype))[start:stop]
     if np.any(envelope < 1e-11):
         raise AudioError("istft window overlap-add envelope has zeros (settings break NOLA)")
     out = (out / envelope).astype(real_dtype)
@@ -219,9 +235,15 @@ def rebuild_with_phase(magnitude: np.ndarray, phase_spec: np.ndarray, *, config:
     magnitude = np.asarray(magnitude)
     if magnitude.shape != np.shape(phase_spec):
         raise AudioError(f"magnitude shape {magnitude.shape} differs from phase shape {np.shape(phase_spec)}")
-    unit = np.exp(1j * np.angle(phase_spec)).astype(np.complex64 if magnitude.dtype == np.float32 else np.complex128)
-    spec = magnitude * unit
-    return istft(spec, config=config, length=length)
+    phase_spec = np.asarray(phase_spec)
+    # magnitude * exp(1j * angle(X)) = X * (magnitude / |X|): no trigonometry and a real division
+    # instead of a complex one (several times faster); angle(0) = 0, so a silent bin gets phase 1.
+    size = np.abs(phase_spec)
+    silent = size == 0
+    spec = phase_spec * (magnitude / np.where(silent, 1, size))
+    np.copyto(spec, magnitude, where=silent)
+    return istft(spec.astype(np.complex64 if magnitude.dtype == np.float32 else np.complex128, copy=False),
+                 config=config, length=length)
 
 
 def rebuild_ground_truth_phase(magnitude: np.ndarray, target_monaural: np.ndarray, *,

@@ -51,6 +51,7 @@ from m2h_ros.core.world.camera import CameraConfig, CameraViews
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
 from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.rir_spectra import RirSpectra
 from m2h_ros.core.world.scene import Scene
 from m2h_ros.errors import ConfigError, EpisodeError, M2HError
 
@@ -123,12 +124,19 @@ class BatchEnv:
     Speed options that leave every number unchanged: ``threads`` renders contiguous chunks of slots
     in parallel; ``pose_cache`` keeps, per slot, the renders of up to that many poses of the current
     episode, so a revisited pose (turning back, Stop in near-target) skips the convolution and STFT
-    (only the microphone noise is drawn anew). ``prepare()`` fills the RIR banks and view caches.
+    (only the microphone noise is drawn anew); ``rir_spectra_mib`` (default 0: off) bounds an LRU of
+    RIR spectra per (scene, source node, receiver node, heading) shared by all slots, so a fresh pose
+    whose RIRs were transformed before (by any slot, in any episode) skips their FFTs
+    (``RirSpectra``; 192 KiB an entry for 0.5 s RIRs). It pays where poses recur across episodes
+    (many clips at few poses); random-action episodes over the test scenes hit it only ~15% of the
+    time at 256 MiB, where its memory traffic costs more than it saves (docs/simulator.md).
+    ``prepare()`` fills the RIR banks and view caches.
     """
 
     def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, n_envs: int,
                  config: EnvConfig = EnvConfig(), rir_cache_dir: Path | None = None,
-                 autoreset: bool = True, threads: int = 1, pose_cache: int = 32) -> None:
+                 autoreset: bool = True, threads: int = 1, pose_cache: int = 32,
+                 rir_spectra_mib: float = 0.0) -> None:
         if not isinstance(config, EnvConfig):
             raise ConfigError(f"config must be an EnvConfig, got {type(config).__name__}")
         if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
@@ -149,6 +157,9 @@ class BatchEnv:
             raise ConfigError(f"pose_cache={pose_cache!r} must be a non-negative int")
         self.autoreset, self.threads, self.rir_cache_dir = autoreset, int(threads), rir_cache_dir
         self.pose_cache = int(pose_cache)
+        if isinstance(rir_spectra_mib, bool) or not isinstance(rir_spectra_mib, (int, float, np.integer)) \
+                or not 0 <= rir_spectra_mib < np.inf:
+            raise ConfigError(f"rir_spectra_mib={rir_spectra_mib!r} must be a finite number >= 0")
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
         self.n_samples = config.stft.clip_samples
         self.max_sources = max(len(e.source_nodes) for e in self.episodes)
@@ -156,6 +167,8 @@ class BatchEnv:
         self.max_episode_steps = max(e.max_steps for e in self.episodes)
         # One linear convolution of a clip with a full RIR, without wrap-around into the kept samples.
         self._n_fft = sfft.next_fast_len(self.n_samples + config.acoustics.n_taps - 1, real=True)
+        self._rir_spectra = RirSpectra(self._n_fft, config.acoustics.n_taps,
+                                       max_bytes=int(rir_spectra_mib * 2**20))
         self._scenes: dict[tuple[str, str, int], _SceneData] = {}
         self._index_of: dict[Episode, int] = {}
         for i, e in enumerate(self.episodes):
@@ -174,6 +187,7 @@ class BatchEnv:
         self._target, self._max_steps, self._target_class = (np.zeros(b, np.int64) for _ in range(3))
         self._far, self._done = np.zeros(b, bool), np.ones(b, bool)
         self._sources = np.zeros((b, k), np.int64)
+        self._n_sources = np.zeros(b, np.int64)
         self._source_weight = np.zeros(b, np.float32)  # 1 / number of sources
         self._clip_spectra = np.zeros((b, k, self._n_fft // 2 + 1), np.complex64)
         self._target_mono = np.zeros((b, self.n_samples), np.float32)
@@ -206,6 +220,12 @@ class BatchEnv:
         """Share of audio observations served from the pose cache since construction."""
         hits, fresh = self._renders.sum(axis=0)
         return float(hits / max(hits + fresh, 1))
+
+    @property
+    def rir_spectra_hit_rate(self) -> float:
+        """Share of the RIR spectra of fresh renders served from the RIR spectrum cache."""
+        spectra = self._rir_spectra
+        return float(spectra.hits / max(spectra.hits + spectra.misses, 1))
 
     def scene_of(self, slot: int) -> Scene:
         data = self._slot_scene[slot]
@@ -291,6 +311,7 @@ class BatchEnv:
         if self._pool is not None:
             self._pool.shutdown()
         self._scenes.clear()
+        self._rir_spectra.clear()
 
     def state(self) -> dict[str, Any]:
         """Where every slot stands (plain types), for :meth:`restore` in a new env over the same
@@ -364,10 +385,8 @@ class BatchEnv:
         self._target[slot], self._max_steps[slot] = episode.target_node, episode.max_steps
         self._far[slot], self._done[slot] = episode.task == "far_target", False
         self._target_class[slot] = TARGET_CATEGORIES.index(episode.target_category)
-        # Unused source rows keep a zero spectrum (they add nothing) at a valid node.
-        self._sources[slot] = episode.target_node
+        self._n_sources[slot] = n_sources   # later rows of _sources and _clip_spectra are unused
         self._sources[slot, :n_sources] = episode.source_nodes
-        self._clip_spectra[slot] = 0
         self._clip_spectra[slot, :n_sources] = sfft.rfft(clips, self._n_fft, axis=-1)
         self._source_weight[slot] = 1.0 / n_sources
         self._target_mono[slot] = clips[0]
@@ -441,61 +460,73 @@ class BatchEnv:
         microphone noise is drawn afresh at every step all the same.
         """
         cfg, noisy = self.config, self.config.mic_noise > 0
-        rows = np.arange(start, stop)
-        keys = list(zip(self._node[all_slots[rows]].tolist(), self._heading[all_slots[rows]].tolist()))
+        rows = range(start, stop)
+        slots = all_slots[start:stop]
+        keys = list(zip(self._node[slots].tolist(), self._heading[slots].tolist()))
         missed = []
-        for row, key in zip(rows.tolist(), keys):
-            cached = self._pose_cache[all_slots[row]].get(key)
-            self._renders[all_slots[row], int(cached is None)] += 1   # each slot has one thread
+        for row, slot, key in zip(rows, slots.tolist(), keys):
+            cached = self._pose_cache[slot].get(key)
+            self._renders[slot, int(cached is None)] += 1   # each slot has one thread
             if cached is None:
                 missed.append(row)
                 continue
-            self._pose_cache[all_slots[row]].move_to_end(key)
-            target_binaural[row], audio[row] = cached[:2]
+            self._pose_cache[slot].move_to_end(key)
+            clean, spectrum = cached
+            target_binaural[row], audio[row] = clean[:2], clean[2:]
             if not noisy:
-                spectrogram[row] = cached[2]
-        missed = np.asarray(missed, np.int64)
-        index = _as_slice(missed)   # views instead of copies in the usual all-rows case
-        if len(missed):
-            target_binaural[index], audio[index] = self._convolve(all_slots[missed])
-        clean = {row: (target_binaural[row].copy(), audio[row].copy())
-                 for row in missed.tolist()} if self.pose_cache else {}
+                spectrogram[row] = spectrum
+        renders = self._convolve(all_slots[missed])
+        for row, render in zip(missed, renders):
+            target_binaural[row], audio[row] = render[:2], render[2:]
         if noisy:
             rms = np.sqrt(np.mean(np.square(audio[start:stop]), axis=(1, 2)))
-            for row in rows.tolist():
-                noise = self._rngs[all_slots[row]].standard_normal((2, self.n_samples), dtype=np.float32)
+            for row, slot in zip(rows, slots.tolist()):
+                noise = self._rngs[slot].standard_normal((2, self.n_samples), dtype=np.float32)
                 audio[row] += (cfg.mic_noise * rms[row - start]) * noise
-        fresh = slice(start, stop) if noisy else index
-        if noisy or len(missed):
+        fresh = slice(start, stop) if noisy else _as_slice(np.asarray(missed, np.int64))
+        if noisy or missed:
             # log(1 + |X|) as log(|X| + 1): numpy's float32 log1p is ~5x slower than its log; they
-            # differ by < 1e-6 here.
-            magnitude = np.abs(stft(audio[fresh], config=cfg.stft))
+            # differ by < 1e-6 here. Written straight into the output when its rows are consecutive.
+            out = spectrogram[fresh] if isinstance(fresh, slice) else None
+            magnitude = np.abs(stft(audio[fresh], config=cfg.stft), out=out)
             magnitude += 1.0
-            spectrogram[fresh] = np.log(magnitude, out=magnitude)
-        for row, key in zip(rows.tolist(), keys):
-            if row in clean:
+            np.log(magnitude, out=magnitude)
+            if out is None:
+                spectrogram[fresh] = magnitude
+        if self.pose_cache:
+            for row, render in zip(missed, renders):
                 cache = self._pose_cache[all_slots[row]]
-                cache[key] = clean[row] if noisy else (*clean[row], spectrogram[row].copy())
+                cache[keys[row - start]] = render, None if noisy else spectrogram[row].copy()
                 if len(cache) > self.pose_cache:
                     cache.popitem(last=False)
 
-    def _convolve(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Target alone (n, 2, S) and clean mixture (n, 2, S) of the given slots at their poses."""
-        k, n, taps = self.max_sources, self.n_samples, self.config.acoustics.n_taps
-        # Zero-padded to the FFT length here, so the FFT does not copy them once more.
-        rirs = np.zeros((len(slots), k, 2, self._n_fft), np.float32)
-        for data, rows in self._groups(slots):
-            members = slots[rows]
-            rirs[rows, ..., :taps] = data.bank.rirs(
-                self._sources[members].ravel(), np.repeat(self._node[members], k),
-                np.repeat(self._heading[members], k)).reshape(len(rows), k, 2, taps)
-        # Convolution in the frequency domain; by linearity the mixture needs one inverse FFT.
-        spectra = sfft.rfft(rirs, axis=-1, overwrite_x=True)
-        spectra *= self._clip_spectra[_as_slice(slots)][:, :, None, :]
-        mix_spectrum = spectra.sum(axis=1)
-        mix_spectrum *= self._source_weight[slots, None, None]
-        target = sfft.irfft(spectra[:, 0], self._n_fft, axis=-1, overwrite_x=True)[..., :n]
-        return target, sfft.irfft(mix_spectrum, self._n_fft, axis=-1, overwrite_x=True)[..., :n]
+    def _convolve(self, slots: np.ndarray) -> list[np.ndarray]:
+        """Per slot, (4, S) views: the target alone (rows 0-1), then the clean mixture (rows 2-3)."""
+        requests, counts = [], self._n_sources[slots].tolist()
+        for slot, count in zip(slots.tolist(), counts):
+            bank, node, heading = self._slot_scene[slot].bank, int(self._node[slot]), int(self._heading[slot])
+            requests.extend((bank, source, node, heading) for source in self._sources[slot, :count].tolist())
+        spectra = self._rir_spectra.spectra(requests)
+        renders, first = [], 0
+        # Slot by slot, so that its products (~400 kB) stay in cache from the multiply to the inverse
+        # FFT, which runs on 4 rows at once (pocketfft vectorises over >= 4 rows).
+        for slot, count in zip(slots.tolist(), counts):
+            found, first = spectra[first:first + count], first + count
+            # Convolution in the frequency domain; by linearity the mixture needs one inverse FFT.
+            both = np.empty((4, found[0].shape[-1]), np.complex64)
+            target, mixture = both[:2], both[2:]
+            np.multiply(found[0], self._clip_spectra[slot, 0], out=target)
+            if count == 1:
+                mixture[:] = target
+            for j in range(1, count):
+                if j == 1:   # source 1 + target: the sum over sources, bit for bit
+                    np.multiply(found[1], self._clip_spectra[slot, 1], out=mixture)
+                    mixture += target
+                else:
+                    mixture += found[j] * self._clip_spectra[slot, j]
+            mixture *= self._source_weight[slot]
+            renders.append(sfft.irfft(both, self._n_fft, axis=-1, overwrite_x=True)[:, :self.n_samples])
+        return renders
 
 
 def _as_slice(rows: np.ndarray) -> slice | np.ndarray:

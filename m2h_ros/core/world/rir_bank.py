@@ -106,7 +106,8 @@ class RirBank:
         if rows.shape != expected or rows.dtype != np.dtype(self.config.storage_dtype):
             raise CacheError(f"RIR bank file {path} holds {rows.dtype}{rows.shape}, expected "
                              f"{self.config.storage_dtype}{expected}; delete it to rebuild")
-        self._maps[node] = rows
+        # A plain ndarray view of the mapping: indexing an np.memmap pays for its subclass hooks.
+        rows = self._maps[node] = rows.view(np.ndarray)
         return rows
 
     def rirs(self, source_nodes, receiver_nodes, headings) -> np.ndarray:

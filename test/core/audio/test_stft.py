@@ -14,6 +14,7 @@ from m2h_ros.core.audio.stft import (
     log_magnitude,
     rebuild_ground_truth_phase,
     rebuild_mixture_phase,
+    rebuild_with_phase,
     stft,
     to_slices,
 )
@@ -133,3 +134,15 @@ def test_phase_reconstructions() -> None:
     assert 5 < si_sdr(deployable, target) < si_sdr(exact, target)
     with pytest.raises(AudioError, match="binaural"):
         rebuild_mixture_phase(magnitude, target)
+
+
+def test_rebuild_with_phase_is_magnitude_times_unit_phase() -> None:
+    rng = np.random.default_rng(3)
+    phase_spec = stft(rng.standard_normal((2, 16000)).astype(np.float32))
+    phase_spec[0, 10, 4] = 0  # angle(0) = 0: the bin keeps the magnitude with phase 1
+    magnitude = np.abs(stft(harmonic()))[None].repeat(2, axis=0)
+    expected = istft(magnitude * np.exp(1j * np.angle(phase_spec)), length=16000)
+    for mag in (magnitude, magnitude.astype(np.float64)):
+        rebuilt = rebuild_with_phase(mag, phase_spec, length=16000)
+        assert rebuilt.dtype == mag.dtype
+        np.testing.assert_allclose(rebuilt, expected, atol=1e-5 * np.abs(expected).max())

@@ -43,7 +43,7 @@ def test_cache_round_trip_and_gather(scene, data_root):
     second = reloaded.rirs(sources, receivers, headings)
     assert np.array_equal(first, second)
     assert [bank.path(i).stat().st_mtime_ns for i in range(n)] == mtimes
-    assert isinstance(reloaded._source(int(sources[0])), np.memmap)
+    assert isinstance(reloaded._source(int(sources[0])).base, np.memmap)   # a view of the mapped file
 
     # A gathered RIR equals the directly simulated one.
     rows = simulate_source(scene, int(sources[0]), CONFIG)

@@ -209,6 +209,28 @@ def test_batch_equals_single_envs_without_pose_cache(near_episodes, small_librar
     assert revisits >= 3   # the batch env served those from its pose cache
 
 
+def test_rir_spectrum_cache_changes_no_number(near_episodes, small_library, rir_cache, config):
+    # Every slot of the first env renders every step with its RIRs transformed afresh; the second
+    # serves repeated (source, receiver, heading) triples from the shared cache and poses from its
+    # pose cache. Both with microphone noise, 2 threads and auto-reset into later episodes.
+    config = dataclasses.replace(config, mic_noise=0.05)
+    kwargs = dict(n_envs=4, config=config, rir_cache_dir=rir_cache, threads=2)
+    plain = BatchEnv(near_episodes, small_library, pose_cache=0, rir_spectra_mib=0, **kwargs)
+    cached = BatchEnv(near_episodes, small_library, rir_spectra_mib=64, **kwargs)
+    (obs_a, info_a), (obs_b, info_b) = plain.reset(), cached.reset()
+    rng = np.random.default_rng(5)
+    for _ in range(45):
+        for key in obs_a:
+            np.testing.assert_array_equal(obs_a[key], obs_b[key], err_msg=key)
+        np.testing.assert_array_equal(info_a["target_binaural"], info_b["target_binaural"])
+        actions = rng.integers(4, size=4)
+        (obs_a, *_, info_a), (obs_b, *_, info_b) = plain.step(actions), cached.step(actions)
+    assert cached.rir_spectra_hit_rate > 0.05 and plain.rir_spectra_hit_rate == 0
+    assert cached.pose_cache_hit_rate > 0.3 and plain.pose_cache_hit_rate == 0
+    with pytest.raises(ConfigError, match="rir_spectra_mib"):
+        BatchEnv(near_episodes, small_library, n_envs=1, rir_spectra_mib=-1.0)
+
+
 def test_gymnasium_env_checker(near_episodes, small_library, rir_cache, config):
     check_env(make_env(near_episodes, small_library, rir_cache, config), skip_render_check=True)
 

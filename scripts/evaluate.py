@@ -1,0 +1,159 @@
+#!/usr/bin/env python3
+"""Evaluate controllers in-process (no ROS) on the test episodes of a task and sound split(s).
+
+    python scripts/evaluate.py [--controllers stand_in_place,random,...] [--task near_target]
+        [--sound-split heard,unheard] [--count 1000] [--first 0] [--slots 16] [--seed 0]
+        [--mic-noise 0] [--checkpoint m2h_ros/models/default/separator_compact.pt]
+        [--out out/evaluate] [--threads 2] [--reference stand_in_place] [--list]
+
+Each controller plays every selected episode once on a batched environment (``--slots`` episodes at
+a time) with the separator (f^B, f^M, f^R) batched over the same slots, scored at every step by the
+same functions as the evaluator node. Prints the paper-style table (final-step SI-SDR in the
+ground-truth-phase and mixture-phase variants, STFT distance: mean ± 95% CI; SR and SPL for
+far-target), each controller's final-step SI-SDR minus ``--reference``'s on the same episodes
+(paired: mean ± 95% CI), and writes results.md / .csv / .json and si_sdr_vs_step.png into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: idle OpenMP threads must not spin
+
+import torch  # noqa: E402
+
+from m2h_ros.agents.registry import CONTROLLER_NAMES, controller_class, make_controller  # noqa: E402
+from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
+from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differences, paired_table,  # noqa: E402
+                                  summarize, write_results)
+from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
+from m2h_ros.core.world import acoustics  # noqa: E402
+from m2h_ros.core.world.env import EnvConfig  # noqa: E402
+from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
+from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
+from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
+from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def shown(path: Path) -> str:
+    """A path as the tables show it: relative to the repository when inside it."""
+    try:
+        return str(path.resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
+def names(text: str, *, allowed: Sequence[str], what: str) -> list[str]:
+    """A comma-separated list, each item one of ``allowed`` (ConfigError naming the bad one)."""
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    if not items:
+        raise ConfigError(f"no {what} given")
+    for item in items:
+        if item not in allowed:
+            raise ConfigError(f"unknown {what} {item!r}; available: {', '.join(allowed)}")
+    return items
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--controllers", default=",".join(CONTROLLER_NAMES),
+                        help="comma-separated controller names (default: all; --list shows them)")
+    parser.add_argument("--task", choices=TASKS, default="near_target")
+    parser.add_argument("--sound-split", default="unheard", help="heard, unheard or both comma-separated")
+    parser.add_argument("--count", type=int, default=1000, help="episodes per sound split")
+    parser.add_argument("--first", type=int, default=0, help="index of the first test episode")
+    parser.add_argument("--slots", type=int, default=16, help="episodes played at once")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
+    parser.add_argument("--mic-noise", type=float, default=0.0, help="microphone noise std / mixture RMS")
+    parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="separator")
+    parser.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output directory")
+    parser.add_argument("--threads", type=int, default=2,
+                        help="torch and rendering threads (2 suits 16 slots on 2 cores)")
+    parser.add_argument("--reference", default="stand_in_place",
+                        help="controller the others are compared with episode by episode (if evaluated)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument("--list", action="store_true", help="list the controllers and exit")
+    return parser
+
+
+def select_episodes(task: str, split: str, *, first: int, count: int, library: SoundLibrary) -> list[Episode]:
+    """Episodes first .. first + count - 1 of the standard test-episode file of a task x sound split."""
+    episodes = episodes_for(EpisodeConfig(task=task, scene_split="test", sound_split=split), library)
+    if first < 0 or count < 1 or first + count > len(episodes):
+        raise ConfigError(f"--first {first} --count {count} selects outside the {len(episodes)} "
+                          f"{task} {split} test episodes")
+    return episodes[first:first + count]
+
+
+def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence[Episode], *,
+        loaded: LoadedSeparator, library: SoundLibrary, env_config: EnvConfig) -> list[EpisodeResult]:
+    """Every controller on every episode; results grouped by controller, episodes in list order."""
+    results: list[EpisodeResult] = []
+    slots = min(args.slots, len(episodes))
+    for name in controllers:
+        controller = make_controller(name, slots, seed=args.seed)
+        runner = SeparatorRunner(loaded, slots)
+        results += evaluate_controller(controller, runner, episodes, library, env_config=env_config,
+                                       threads=args.threads, progress=not args.no_progress)
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.list:
+        for name in CONTROLLER_NAMES:
+            print(f"{name:<18} {controller_class(name).summary}")
+        return 0
+    command = shlex.join(["python", "scripts/evaluate.py", *(sys.argv[1:] if argv is None else argv)])
+    started = time.perf_counter()
+    try:
+        controllers = names(args.controllers, allowed=CONTROLLER_NAMES, what="controller")
+        splits = names(args.sound_split, allowed=SOUND_SPLITS, what="sound split")
+        for option in ("slots", "threads"):
+            if getattr(args, option) < 1:
+                raise ConfigError(f"--{option.replace('_', '-')} must be >= 1")
+        loaded = load_separator(args.checkpoint)
+        torch.set_num_threads(args.threads)
+        library = SoundLibrary.load()
+        episodes = [e for split in splits for e in select_episodes(args.task, split, first=args.first,
+                                                                     count=args.count, library=library)]
+        env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
+                               mic_noise=args.mic_noise)
+        results = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
+        meta = {"command": command, "checkpoint": shown(args.checkpoint), "task": args.task,
+                "sound_splits": splits, "first": args.first, "count_per_split": args.count,
+                "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
+                "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
+                "load_average": [round(x, 2) for x in os.getloadavg()]}
+        reference = args.reference if args.reference in controllers else None
+        meta["separator_sha256"] = hashlib.sha256(Path(loaded.path).read_bytes()).hexdigest()[:12]
+        meta["acoustics"] = f"v{acoustics.VERSION} {env_config.acoustics.digest()}"
+        setup = (f"separator `{Path(loaded.path).name}` (sha256 {meta['separator_sha256']}), "
+                 f"acoustics {meta['acoustics']}")
+        paths = write_results(results, args.out, title=f"{args.task} test episodes, {' + '.join(splits)} sounds",
+                              meta=meta, command=command, setup=setup, reference=reference)
+    except M2HError as exc:
+        print(f"evaluate: error: {exc}", file=sys.stderr)
+        return 2
+    print(markdown_table(summarize(results)))
+    if reference:
+        print(f"final-step SI-SDR (GT phase) minus {reference}'s, same episodes:")
+        print(paired_table(paired_differences(results, reference=reference)))
+    print(f"{len(results)} episodes in {meta['wall_seconds']} s (load average {meta['load_average']})")
+    for kind, path in paths.items():
+        print(f"{kind}: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
