@@ -140,6 +140,7 @@ def main(argv=None) -> int:
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
     env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "params" / "fastdds.xml"))
     print(f"[run] ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, run directory {args.out}", flush=True)
     procs: dict[str, subprocess.Popen] = {}
     logs: dict[str, Path] = {}

@@ -86,6 +86,8 @@ source "$WS/install/setup.bash"
 if [ -n "\$_m2h_nounset" ]; then set -u; fi
 unset _m2h_nounset
 export M2H_ROOT="$ROOT"
+# Fast DDS writer timing of the pipeline (params/fastdds.xml: 50 ms heartbeats repair lost fragments).
+export FASTRTPS_DEFAULT_PROFILES_FILE="\${FASTRTPS_DEFAULT_PROFILES_FILE:-$ROOT/params/fastdds.xml}"
 export PATH="$ROOT/scripts/bin:\$PATH"
 ENV
 say "ready: source $ROOT/env.sh"

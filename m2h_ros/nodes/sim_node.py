@@ -183,6 +183,8 @@ class SimNode(Node):
         tag = dict(episode_id=episode.episode_id, step=step, stamp_ns=stamp)
         if episode_start:
             self.pub_episode.publish(convert.episode_info_msg(episode, stamp_ns=stamp))
+        # The mixture first: the separator (the longest stage) starts while the rest goes out.
+        self.pub_audio.publish(convert.audio_msg(obs["audio"][0], sample_rate=self.sample_rate, **tag))
         pose = obs["pose"][0]
         self.pub_odom.publish(convert.odometry_msg(pose, height=self.ear_height, stamp_ns=stamp))
         self.pub_pose.publish(convert.agent_pose_msg(pose, node=int(obs["node"][0]), heading=int(obs["heading"][0]),
@@ -193,8 +195,6 @@ class SimNode(Node):
             self.pub_info.publish(convert.camera_info_msg(self.camera_config, stamp_ns=stamp))
         self.pub_truth.publish(convert.ground_truth_msg(info, 0, sample_rate=self.sample_rate,
                                                          last_step=self.current.done, **tag))
-        # The mixture last: it is what starts the separator, so everything else of the step is out.
-        self.pub_audio.publish(convert.audio_msg(obs["audio"][0], sample_rate=self.sample_rate, **tag))
         self.published_at = time.monotonic()
         if not self.steps:
             self.first_published_at = self.published_at

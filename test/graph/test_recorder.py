@@ -91,4 +91,4 @@ def test_recorder_lists_the_offered_qos(processes, tmp_path):
     # The probe publishes with the STEP profile; discovery does not carry history and depth (rosbag2
     # records the same "unknown", 0).
     (offered,) = probe["offered_qos_profiles"]
-    assert (offered["reliability"], offered["durability"]) == ("reliable", "volatile")
+    assert (offered["reliability"], offered["durability"]) == ("reliable", "transient_local")
