@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
+from pipeline_helpers import TINY_SIM, node_env
 
 pytestmark = pytest.mark.graph
 ROOT = Path(__file__).resolve().parents[2]
@@ -44,12 +45,18 @@ def wait_for_line(proc, text: str, timeout: float = 20.0) -> list[str]:
 
 
 @pytest.mark.parametrize("node", NODES)
-def test_node_starts_and_exits_on_sigint(node, processes, tmp_path):
+def test_node_starts_and_exits_on_sigint(node, processes, tmp_path, request):
     share = Path(get_package_share_directory("m2h_ros"))
     args = [ROS2RUN, "m2h_ros", node, "--ros-args", "--params-file", str(share / "params" / f"{node}.yaml")]
+    env = None
     if node == "recorder_node":
         args += ["-p", f"output:={tmp_path / 'bag'}"]
-    proc = processes.start(args, cwd=tmp_path)
+    if node == "sim_node":  # the small library, not the full one a fresh machine has not built
+        request.getfixturevalue("small_library")
+        env = node_env(request.getfixturevalue("small_data_dir"))
+        for name, value in TINY_SIM.items():
+            args += ["-p", f"{name}:={value}"]
+    proc = processes.start(args, cwd=tmp_path, env=env)
     wait_for_line(proc, "recording to" if node == "recorder_node" else "ready:")
     code, _, err = processes.interrupt(proc)
     assert code == 0, err
