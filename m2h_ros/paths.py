@@ -12,3 +12,16 @@ def data_dir() -> Path:
     """Root of generated, cached data: ``$M2H_DATA_DIR`` or ``~/.cache/m2h_ros``."""
     root = os.environ.get("M2H_DATA_DIR")
     return Path(root).expanduser() if root else Path.home() / ".cache" / "m2h_ros"
+
+
+REPO_DIR = PACKAGE_DIR.parent
+
+
+def repo_relative(path: str | os.PathLike) -> str:
+    """``path`` relative to the repository root when it lies inside it (stored results must not
+    name this machine's folders), else as given."""
+    path = Path(path)
+    try:
+        return path.resolve().relative_to(REPO_DIR).as_posix()
+    except ValueError:
+        return str(path)

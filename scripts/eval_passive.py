@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
-"""Passive baseline on the held-out test episodes: separator (both phase variants) vs the mixture floor.
+"""Passive separation on the held-out test episodes: floor (mixture), separator and ideal-mask oracle.
 
-    python scripts/eval_passive.py [--checkpoint m2h_ros/models/default/separator_compact.pt] [--count 200]
+    python scripts/eval_passive.py [--checkpoint m2h_ros/models/default/separator_compact.pt] [--count 500]
 
 Stand In-Place at step 0 of near-target test episodes (heard and unheard sounds; the first --count
-episodes of the standard 1000-episode files), f^B + f^M + f^R with fresh memory. Prints a table and
-writes JSON (default: <checkpoint stem>_passive.json next to the checkpoint).
+episodes of the standard 1000-episode files), f^B + f^M + f^R with fresh memory; definitions in
+``m2h_ros/training/passive_eval.py``. Prints a table and the share of the floor-to-oracle gap the
+separator closes, and writes JSON (default: <checkpoint stem>_passive.json next to the checkpoint).
 """
 
 from __future__ import annotations
@@ -17,30 +18,38 @@ import sys
 import time
 from pathlib import Path
 
+from m2h_ros.core.audio.scoring import DEPLOYABLE_REFERENCE
+from m2h_ros.core.results import METRIC_LABELS, METRICS
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
 from m2h_ros.errors import M2HError
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
-from m2h_ros.training.passive_eval import REFERENCES, VARIANTS, evaluate_passive, summarize
+from m2h_ros.paths import repo_relative
+from m2h_ros.training.passive_eval import ESTIMATES, evaluate_passive, gap_closed, summarize
 
-LABELS = {"separator_gt_phase": "separator, GT phase (paper)", "separator_mixture_phase": "separator, mixture phase",
-          "mixture_gt_phase": "mixture, GT phase", "mixture": "mixture (do nothing)"}
+LABELS = {"mixture": "mixture (floor)", "separator": "separator (refined)",
+          "separator_binaural": "f^B ear mean", "oracle": "ideal mask (oracle)"}
+GAP_ESTIMATES = ("separator", "separator_binaural")
+REFERENCES = {"si_sdr": "dry target", "si_sdr_mixture_phase": DEPLOYABLE_REFERENCE, "stft_distance": "dry target"}
 
 
-def format_table(results: dict[str, dict[str, dict[str, float]]]) -> str:
-    lines = [f"{'sounds':<8} {'estimate':<30} {'scored vs':<25} {'SI-SDR dB':>16} {'STFT distance':>18} {'n':>5}"]
-    for split, summary in results.items():
-        for variant in VARIANTS:
-            s = summary[variant]
-            lines.append(f"{split:<8} {LABELS[variant]:<30} {REFERENCES[variant]:<25} {s['si_sdr']:>9.2f} ± {s['si_sdr_sem']:<4.2f} "
-                         f"{s['stft_distance']:>10.1f} ± {s['stft_distance_sem']:<5.1f} {s['episodes']:>5}")
+def format_table(results: dict[str, dict]) -> str:
+    lines = [f"{'sounds':<8} {'estimate':<24} " + " ".join(f"{METRIC_LABELS[m]:>28}" for m in METRICS) + f" {'n':>5}"]
+    for split, result in results.items():
+        for estimate in ESTIMATES:
+            s = result["summary"][estimate]
+            cells = " ".join(f"{s[m]:>19.2f} ± {s[m + '_sem']:<6.2f}" for m in METRICS)
+            lines.append(f"{split:<8} {LABELS[estimate]:<24} {cells} {s['episodes']:>5}")
+        for estimate in GAP_ESTIMATES:
+            gap = result["gap_closed"][estimate]
+            lines.append(f"{split:<8} {'gap: ' + LABELS[estimate]:<24} " + " ".join(f"{gap[m]:>27.0%} " for m in METRICS))
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT)
-    parser.add_argument("--count", type=int, default=200, help="episodes per sound split")
+    parser.add_argument("--count", type=int, default=500, help="episodes per sound split")
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default: next to the checkpoint)")
@@ -51,19 +60,28 @@ def main(argv: list[str] | None = None) -> int:
         results, started = {}, time.perf_counter()
         for split in args.sound_split or SOUND_SPLITS:
             episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
-            results[split] = summarize(evaluate_passive(loaded, episodes[: args.count], library))
+            summary = summarize(evaluate_passive(loaded, episodes[: args.count], library))
+            results[split] = {"summary": summary, "gap_closed": {e: {m: gap_closed(summary, m, e) for m in METRICS}
+                                                                  for e in GAP_ESTIMATES}}
     except M2HError as exc:
         print(f"eval_passive: error: {exc}", file=sys.stderr)
         return 2
     print(format_table(results))
     out = args.out or args.checkpoint.with_name(f"{args.checkpoint.stem}_passive.json")
-    document = {"command": shlex.join(["scripts/eval_passive.py", *(sys.argv[1:] if argv is None else argv)]),
-                "checkpoint": str(args.checkpoint), "task": args.task, "scene_split": "test", "step": 0,
+    given = sys.argv[1:] if argv is None else argv
+    document = {"command": shlex.join(["scripts/eval_passive.py", *given]),
+                "checkpoint": repo_relative(args.checkpoint), "task": args.task, "scene_split": "test", "step": 0,
                 "count_per_split": args.count, "wall_seconds": round(time.perf_counter() - started, 1),
+                "estimates": {"mixture": "|STFT| of the ear-mean mixture (do nothing)",
+                              "separator": "f^B -> f^M -> f^R, fresh memory (estimate of the dry target)",
+                              "separator_binaural": "ear mean of f^B's separated binaural (the target as heard)",
+                              "oracle": "ideal mask: min(|R|, |X|), X = STFT of the ear-mean mixture, R = STFT "
+                                        "of the metric's reference: the dry target (GT-phase SI-SDR, STFT "
+                                        "distance), the target as heard / number of sources (mixture phase)"},
                 "references": REFERENCES,
                 "results": results}
     out.write_text(json.dumps(document, indent=1) + "\n")
-    print(f"wrote {out}")
+    print(f"wrote {repo_relative(out)}")
     return 0
 
 

@@ -43,8 +43,7 @@ def new_tracker(episode: Episode, controller: str, info: dict, slot: int, start_
 
 
 def truth_of(info: dict, rows) -> StepTruth:
-    return StepTruth(target_monaural=info["target_monaural"][rows], target_binaural=info["target_binaural"][rows],
-                     target_delay=info["target_delay"][rows])
+    return StepTruth(target_monaural=info["target_monaural"][rows], target_binaural=info["target_binaural"][rows])
 
 
 def evaluate_controller(controller: Controller, runner: SeparatorRunner, episodes: Sequence[Episode],

@@ -356,8 +356,7 @@ class _Replayer:
         truths = [p.truth for p in parts]
         truth = StepTruth(
             target_monaural=np.stack([np.asarray(t.target_monaural, np.float32) for t in truths]),
-            target_binaural=np.stack([np.asarray(t.target_binaural, np.float32).reshape(2, -1) for t in truths]),
-            target_delay=np.array([t.target_delay for t in truths], np.float64))
+            target_binaural=np.stack([np.asarray(t.target_binaural, np.float32).reshape(2, -1) for t in truths]))
         config = StftConfig(sample_rate=parts[0].stft.sample_rate, clip_samples=n)
         scores = score_magnitude(np.stack([p.refined for p in parts]), np.stack([p.audio for p in parts]),
                                  truth, config=config)

@@ -176,7 +176,7 @@ def _episode(run: SyntheticRun, index: int, put, clock, live_score, t) -> Episod
             put(topics.COMMAND, t["m2h_msgs/msg/MotionCommand"](
                 header=_header(stamp, "base_link"), episode_id=episode_id, step=step, action=action,
                 controller=run.controller))
-        truth = StepTruth(target_monaural=target, target_binaural=target_binaural, target_delay=np.float64(delay + 1.5))
+        truth = StepTruth(target_monaural=target, target_binaural=target_binaural)
         scores = score_magnitude(refined, mixture, truth)
         si = float(scores.si_sdr) if live_score is None else live_score(episode_id, step, float(scores.si_sdr))
         tracker.observe(step, si_sdr=si, si_sdr_mixture_phase=float(scores.si_sdr_mixture_phase),

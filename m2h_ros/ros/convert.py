@@ -203,8 +203,7 @@ def ground_truth_msg(info: dict, slot: int, *, sample_rate: int, last_step: bool
 def truth_from_msg(msg: GroundTruth, *, samples: int) -> StepTruth:
     what = f"ground truth of {msg.episode_id} step {msg.step}"
     return StepTruth(target_monaural=_read_floats(msg.target_monaural, samples, what)[None],
-                     target_binaural=_read_floats(msg.target_binaural, 2 * samples, what).reshape(1, 2, samples),
-                     target_delay=np.array([msg.target_delay]))
+                     target_binaural=_read_floats(msg.target_binaural, 2 * samples, what).reshape(1, 2, samples))
 
 
 def command_msg(action: int, *, controller: str, episode_id: str, step: int, stamp_ns: int) -> MotionCommand:

@@ -1,38 +1,48 @@
-"""Pretrain the passive separator (f^B, f^M, then f^R) on simulator recordings; one readable loop.
+"""Pretrain the passive separator (f^B, f^M, then f^R) on data drawn on the fly from the simulator.
 
     python -m m2h_ros.training.pretrain_separator [--preset compact] [--seed 0] [--out PATH]
 
-Data (``separator_data``): sequences recorded in the train scenes with heard sounds (training) and
-in the val scenes with unheard sounds (validation), built and cached on first use.
+Data (``separator_data``): every batch is a fresh draw (episode, walk, clips, gains, noise) from the
+training scenes with heard sounds, rendered by DataLoader worker processes while the main process
+trains; validation is a fixed set drawn once from the val scenes with unheard sounds, unaugmented.
 
-Stage 1 (f^B + f^M, Adam 5e-4 as the seed says), one pass per batch of single observations:
+Stage 1 (f^B + f^M, Adam 5e-4 as the seed says), batches of single observations:
   * f^B predicts a ratio mask on the mixture magnitude; loss L1(mask * |mixture|, |target share|),
-    where the target's share of the mixture is its binaural render / the number of sources (the
-    mixture is the sum of the renders divided by that number, so this is what a mask can reach);
+    the target's share of the mixture being what a mask can reach;
   * f^M maps f^B's separated binaural magnitude to the target's dry monaural magnitude; loss L1.
     f^M's input is f^B's output *detached*: f^M learns on what f^B really produces (as at inference)
     while its loss does not pull f^B away from its own binaural target.
-  Validation (unheard sounds) after every epoch; the weights with the best validation f^M loss are kept.
-Stage 2 (f^R): f^B and f^M frozen (eval mode); their estimates for every recorded step are computed
-once; the refiner runs along each sequence with its memory reset at the episode's first step and
-the previous refined estimate carried over (backpropagation through the whole sequence), loss L1 of
-every step's refined estimate to the ground-truth monaural magnitude. Best validation epoch kept.
+  Validation after every epoch, beside two references for f^B: the identity mask (the mixture as
+  is) and the ideal mask (|share| / |mixture| capped at 1). The weights with the best validation f^M
+  loss are kept.
+Stage 2 (f^R): f^B and f^M frozen (eval mode); on sequences of consecutive observations the refiner
+runs with its memory reset at the first step and the previous refined estimate carried over
+(backpropagation through the sequence), loss L1 of every step's refined estimate to the monaural
+target. Best validation epoch kept.
+
+Resumable: after every epoch the whole training state (weights, optimizer, best weights, history,
+stream position) is written atomically to ``<out stem>.state.pt``; running the same command again
+continues from there (batches are a function of their index, so the continuation equals an
+uninterrupted run). The epoch counts may change on resume: a run stopped during stage 1 and rerun
+with ``--epochs`` = the epochs it completed goes on to stage 2 (a wall-clock budget without
+guessing the throughput up front). The state file is removed when the run completes.
 
 Outputs: the checkpoint (``save_separator``: model args, STFT, classes, metadata), ``<stem>.json``
-(metadata: data sizes, epochs, wall times, machine, losses, command) and ``<stem>_loss.png``.
+(metadata: data, epochs, wall times, throughput, machine, losses, command) and ``<stem>_loss.png``.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import os
 import platform
 import shlex
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,51 +55,87 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
+from torch.utils.data import DataLoader  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from m2h_ros.core.audio.stft import to_slices  # noqa: E402
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
-from m2h_ros.errors import ConfigError  # noqa: E402
+from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, save_separator  # noqa: E402
 from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
-from m2h_ros.training.separator_data import SeparatorDataConfig, SeparatorDataset, separator_dataset  # noqa: E402
+from m2h_ros.paths import repo_relative  # noqa: E402
+from m2h_ros.training.separator_data import (  # noqa: E402
+    BatchSource,
+    SeparatorBatch,
+    SeparatorStream,
+    StreamConfig,
+    build_banks,
+    fixed_set,
+)
+
+STATE_VERSION = 1
+STAGES = ("stage1", "stage2")
 
 
 def _compact() -> SeparatorConfig:
     return SeparatorConfig.preset("compact")
 
 
+def _stage1_stream() -> StreamConfig:
+    return StreamConfig.training()
+
+
+def _stage2_stream() -> StreamConfig:
+    return StreamConfig.training(batch_size=8, steps=8)
+
+
+def _validation_stream() -> StreamConfig:
+    return StreamConfig.validation()
+
+
 @dataclass(frozen=True)
 class PretrainConfig:
-    """Hyperparameters of one pretraining run."""
+    """Hyperparameters of one pretraining run (all but ``threads`` and ``workers`` change its result)."""
 
     model: SeparatorConfig = field(default_factory=_compact)
-    seed: int = 0  # weights, batch order
+    seed: int = 0  # weights
     lr: float = 5e-4  # Adam, both stages (the seed's pretraining rate)
-    batch_size: int = 16  # observations per f^B/f^M batch
-    epochs: int = 8  # stage 1 passes over the training observations
-    refiner_batch_size: int = 8  # sequences per f^R batch
-    refiner_epochs: int = 15  # stage 2 passes over the training sequences
-    threads: int = 2  # torch intra-op threads
-    max_batches: int | None = None  # cap on batches per epoch (smoke runs, tests)
-    train_data: SeparatorDataConfig = field(default_factory=SeparatorDataConfig.training)
-    val_data: SeparatorDataConfig = field(default_factory=SeparatorDataConfig.validation)
+    epochs: int = 8  # stage 1 epochs of ...
+    batches_per_epoch: int = 500  # ... this many batches of train_data
+    refiner_epochs: int = 4
+    refiner_batches_per_epoch: int = 100
+    train_data: StreamConfig = field(default_factory=_stage1_stream)  # stage 1: single observations
+    refiner_data: StreamConfig = field(default_factory=_stage2_stream)  # stage 2: sequences
+    val_data: StreamConfig = field(default_factory=_validation_stream)
+    val_batches: int = 4  # the fixed validation set: this many batches of val_data
+    threads: int = 2  # torch intra-op threads of the training process
+    workers: int = 1  # DataLoader worker processes rendering batches
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, SeparatorConfig):
             raise ConfigError(f"PretrainConfig.model must be a SeparatorConfig, got {type(self.model).__name__}")
-        for name, low in (("seed", 0), ("batch_size", 2), ("epochs", 1), ("refiner_batch_size", 2),
-                          ("refiner_epochs", 1), ("threads", 1)):
+        for name, low in (("seed", 0), ("epochs", 1), ("batches_per_epoch", 1), ("refiner_epochs", 1),
+                          ("refiner_batches_per_epoch", 1), ("val_batches", 1), ("threads", 1), ("workers", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ConfigError(f"PretrainConfig.{name} must be an int >= {low}, got {value!r}")
         if not (isinstance(self.lr, float) and 0 < self.lr < 1):
             raise ConfigError(f"PretrainConfig.lr must be a float in (0, 1), got {self.lr!r}")
-        if self.max_batches is not None and (isinstance(self.max_batches, bool) or self.max_batches < 1):
-            raise ConfigError(f"PretrainConfig.max_batches must be None or >= 1, got {self.max_batches!r}")
-        if self.train_data.env.stft != self.val_data.env.stft:
-            raise ConfigError("PretrainConfig: train_data and val_data use different STFT settings")
+        for name in ("train_data", "refiner_data", "val_data"):
+            stream = getattr(self, name)
+            if not isinstance(stream, StreamConfig):
+                raise ConfigError(f"PretrainConfig.{name} must be a StreamConfig, got {type(stream).__name__}")
+            if stream.env.stft != self.train_data.env.stft:
+                raise ConfigError(f"PretrainConfig.{name} uses other STFT settings than train_data")
+        if self.train_data.steps != 1:
+            raise ConfigError("PretrainConfig.train_data must draw single observations (steps=1)")
         self.model.check_stft(self.train_data.env.stft)
+
+    def result_fields(self) -> dict[str, Any]:
+        """The fields a resumed run must share with the run it continues. Not the epoch counts: the
+        learning rate is constant and batch i is the same in any run, so continuing with more (or
+        fewer) epochs of the current stage is the run that had that many from the start."""
+        return {k: v for k, v in dataclasses.asdict(self).items()
+                if k not in ("threads", "workers", "epochs", "refiner_epochs")}
 
 
 @dataclass
@@ -99,56 +145,49 @@ class PretrainResult:
     metadata: dict[str, Any]
 
 
-# --------------------------------------------------------------------------- batches
+@dataclass
+class _State:
+    """Everything a resumed run needs; written after every epoch."""
+
+    stage: str = STAGES[0]
+    epoch: int = 0  # epochs completed in ``stage``
+    history: dict[str, list[dict[str, float]]] = field(default_factory=lambda: {s: [] for s in STAGES})
+    best: dict[str, Any] = field(default_factory=dict)  # per stage: epoch, value, state dict
+    seconds: dict[str, float] = field(default_factory=lambda: {"setup": 0.0, **{s: 0.0 for s in STAGES}})
+    model: dict[str, torch.Tensor] | None = None
+    optimizer: dict[str, Any] | None = None
 
 
-@dataclass(frozen=True)
-class _Tensors:
-    """A dataset as torch tensors in the sliced layout, float16 as stored (converted per batch)."""
-
-    mixture_logmag: torch.Tensor  # (S, T, 2S', H, W) log(1 + |mixture|)
-    target_binaural: torch.Tensor  # (S, T, 2S', H, W) |target alone as heard|
-    target_monaural: torch.Tensor  # (S, S', H, W) |dry target|
-    class_index: torch.Tensor  # (S,)
-    n_sources: torch.Tensor  # (S,)
-
-    @classmethod
-    def of(cls, data: SeparatorDataset, n_slices: int) -> _Tensors:
-        def sliced(array: np.ndarray) -> torch.Tensor:
-            return torch.from_numpy(np.ascontiguousarray(to_slices(array, n_slices=n_slices)))
-
-        return cls(sliced(data.mixture_logmag), sliced(data.target_binaural),
-                   sliced(np.asarray(data.target_monaural)[:, None]),
-                   torch.from_numpy(np.asarray(data.class_index, dtype=np.int64)),
-                   torch.from_numpy(np.asarray(data.n_sources, dtype=np.int64)))
-
-    @property
-    def steps(self) -> int:
-        return self.mixture_logmag.shape[1]
-
-    def observations(self, flat: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(|mixture|, target's share of the mixture, monaural target, class) of observations
-        ``flat`` (indices into S * T); the share is the target's render / the number of sources."""
-        seq, step = (torch.from_numpy(a) for a in np.divmod(flat, self.steps))
-        share = self.target_binaural[seq, step].float() / self.n_sources[seq].reshape(-1, 1, 1, 1)
-        return (torch.expm1(self.mixture_logmag[seq, step].float()), share,
-                self.target_monaural[seq].float(), self.class_index[seq])
+def state_path(out: Path) -> Path:
+    return out.with_name(f"{out.stem}.state.pt")
 
 
-def _batches(n: int, size: int, rng: np.random.Generator | None, limit: int | None) -> list[np.ndarray]:
-    """Index batches over n items (shuffled when rng is given); a last batch of 1 is dropped (BatchNorm)."""
-    order = rng.permutation(n) if rng is not None else np.arange(n)
-    batches = [order[i: i + size] for i in range(0, n, size)]
-    batches = [b for b in batches if len(b) > 1]
-    return batches[:limit] if limit else batches
+def _save_state(path: Path, config: PretrainConfig, state: _State) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    torch.save({"version": STATE_VERSION, "config": config.result_fields(), **dataclasses.asdict(state)}, tmp)
+    os.replace(tmp, path)
 
 
-def _stage1_losses(separator: Separator, data: _Tensors, flat: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """L1 of f^B's binaural and f^M's monaural magnitude for observations ``flat`` (indices into S*T)."""
-    mixture, share, monaural_target, classes = data.observations(flat)
+def _load_state(path: Path, config: PretrainConfig) -> _State:
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except (OSError, RuntimeError, EOFError) as exc:
+        raise CheckpointError(f"training state {path} is unreadable ({exc}): delete it to start afresh") from exc
+    if payload.get("version") != STATE_VERSION or payload.get("config") != config.result_fields():
+        raise CheckpointError(f"training state {path} belongs to another configuration: delete it (or pass "
+                              f"--fresh) to start afresh, or rerun with the settings it was made with")
+    return _State(**{f.name: payload[f.name] for f in dataclasses.fields(_State)})
+
+
+# --------------------------------------------------------------------------- losses and scores
+
+
+def _stage1_losses(separator: Separator, mixture: torch.Tensor, share: torch.Tensor, monaural: torch.Tensor,
+                   classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """L1 of f^B's binaural and f^M's monaural magnitude."""
     _, binaural = separator.separate_binaural(mixture, classes)
-    monaural = separator.predict_monaural(binaural.detach(), classes)
-    return F.l1_loss(binaural, share), F.l1_loss(monaural, monaural_target)
+    estimate = separator.predict_monaural(binaural.detach(), classes)
+    return F.l1_loss(binaural, share), F.l1_loss(estimate, monaural)
 
 
 def _refine_sequences(separator: Separator, estimates: torch.Tensor) -> torch.Tensor:
@@ -161,38 +200,50 @@ def _refine_sequences(separator: Separator, estimates: torch.Tensor) -> torch.Te
 
 
 @torch.no_grad()
-def _monaural_estimates(separator: Separator, data: _Tensors, batch_size: int) -> torch.Tensor:
-    """f^M estimates (S, T, S', H, W) of every recorded step (call with f^B, f^M in eval mode)."""
-    s, t = data.mixture_logmag.shape[:2]
-    out = torch.empty((s * t, *data.target_monaural.shape[1:]))
-    for start in range(0, s * t, batch_size):
-        flat = np.arange(start, min(start + batch_size, s * t))
-        mixture, _, _, classes = data.observations(flat)
-        _, binaural = separator.separate_binaural(mixture, classes)
-        out[flat] = separator.predict_monaural(binaural, classes)
-    return out.reshape(s, t, *out.shape[1:])
+def _monaural_estimates(separator: Separator, batch: SeparatorBatch) -> torch.Tensor:
+    """Frozen f^B -> f^M estimates of every observation of a batch -> (B, T, S', H, W)."""
+    mixture, _, _, classes = batch.observations()
+    _, binaural = separator.separate_binaural(mixture, classes)
+    estimate = separator.predict_monaural(binaural, classes)
+    return estimate.reshape(*batch.mixture.shape[:2], *estimate.shape[1:])
+
+
+def _refiner_loss(separator: Separator, batch: SeparatorBatch) -> torch.Tensor:
+    refined = _refine_sequences(separator, _monaural_estimates(separator, batch))
+    return F.l1_loss(refined, batch.monaural[:, None].expand_as(refined))
 
 
 @torch.no_grad()
-def evaluate_stage1(separator: Separator, data: _Tensors, batch_size: int) -> dict[str, float]:
+def evaluate_stage1(separator: Separator, batches: Sequence[SeparatorBatch]) -> dict[str, float]:
+    """Mean L1 of f^B and f^M over every observation, and f^B's two references: the identity mask
+    (the mixture itself) and the ideal mask (min(|share|, |mixture|), i.e. |share|/|mixture| capped at 1)."""
     separator.eval()
-    batches = _batches(data.mixture_logmag.shape[0] * data.steps, batch_size, None, None)
-    totals = np.zeros(2)
-    for flat in batches:
-        totals += [float(x) * len(flat) for x in _stage1_losses(separator, data, flat)]
-    used = sum(len(b) for b in batches)
-    return {"binaural_l1": float(totals[0] / used), "monaural_l1": float(totals[1] / used)}
+    totals, count = np.zeros(4), 0
+    for batch in batches:
+        mixture, share, monaural, classes = batch.observations()
+        n = len(mixture)
+        losses = [*_stage1_losses(separator, mixture, share, monaural, classes), F.l1_loss(mixture, share),
+                  F.l1_loss(torch.minimum(share, mixture), share)]
+        totals, count = totals + np.array([float(x) for x in losses]) * n, count + n
+    names = ("binaural_l1", "monaural_l1", "identity_mask_binaural_l1", "ideal_mask_binaural_l1")
+    return dict(zip(names, (float(v) for v in totals / count)))
 
 
 @torch.no_grad()
-def evaluate_refiner(separator: Separator, estimates: torch.Tensor, targets: torch.Tensor) -> dict[str, float]:
+def evaluate_refiner(separator: Separator, batches: Sequence[SeparatorBatch]) -> dict[str, float]:
     """Refined and unrefined (f^M only) L1 to the monaural target, over all steps and at the first and last step."""
     separator.eval()
-    refined = _refine_sequences(separator, estimates)
-    per_step = (refined - targets[:, None]).abs().mean(dim=(0, 2, 3, 4))
+    per_step, unrefined, count = 0.0, 0.0, 0
+    for batch in batches:
+        estimates = _monaural_estimates(separator, batch)
+        target = batch.monaural[:, None]
+        refined = _refine_sequences(separator, estimates)
+        n = len(estimates)
+        per_step = per_step + (refined - target).abs().mean(dim=(0, 2, 3, 4)) * n
+        unrefined, count = unrefined + float((estimates - target).abs().mean()) * n, count + n
+    per_step = per_step / count
     return {"refined_l1": float(per_step.mean()), "refined_l1_first": float(per_step[0]),
-            "refined_l1_last": float(per_step[-1]),
-            "unrefined_l1": float((estimates - targets[:, None]).abs().mean())}
+            "refined_l1_last": float(per_step[-1]), "unrefined_l1": unrefined / count}
 
 
 # --------------------------------------------------------------------------- the run
@@ -222,6 +273,7 @@ def plot_losses(path: Path, history: dict[str, list[dict[str, float]]]) -> Path:
     stage1, stage2 = history["stage1"], history["stage2"]
     epochs = [h["epoch"] for h in stage1]
     for key, style in (("train_binaural_l1", "C0--"), ("val_binaural_l1", "C0-"),
+                       ("val_identity_mask_binaural_l1", "C0:"), ("val_ideal_mask_binaural_l1", "C0-."),
                        ("train_monaural_l1", "C1--"), ("val_monaural_l1", "C1-")):
         left.plot(epochs, [h[key] for h in stage1], style, marker="o", ms=3, label=key.replace("_", " "))
     left.set(title="stage 1: f^B (binaural) and f^M (monaural)", xlabel="epoch", ylabel="L1 magnitude")
@@ -239,146 +291,195 @@ def plot_losses(path: Path, history: dict[str, list[dict[str, float]]]) -> Path:
     return path
 
 
+EpochHook = Callable[[str, dict[str, float]], None]
+
+
+def _print_epoch(stage: str, record: dict[str, float]) -> None:
+    tqdm.write(f"{stage} epoch {record['epoch']}: " + ", ".join(
+        f"{k} {v:.4f}" for k, v in record.items() if k != "epoch"))
+
+
+def _batches(config: PretrainConfig, stream: StreamConfig, library: SoundLibrary, start: int, stop: int,
+             rir_cache_dir: Path | None) -> Iterator[SeparatorBatch]:
+    """Batches start..stop-1 of a stream, rendered by the configured worker processes, checked in order."""
+    loader = DataLoader(SeparatorStream(BatchSource(stream, library, rir_cache_dir=rir_cache_dir), start, stop),
+                        batch_size=None, num_workers=config.workers, prefetch_factor=4 if config.workers else None)
+    for expected, batch in enumerate(loader, start):
+        if batch.index != expected:
+            raise RuntimeError(f"data loader gave batch {batch.index}, expected {expected}")
+        yield batch
+
+
+def _train_stage(stage: str, config: PretrainConfig, state: _State, separator: Separator,
+                 parameters: list[torch.nn.Parameter], modules: list[torch.nn.Module], *,
+                 stream: StreamConfig, epochs: int, batches_per_epoch: int,
+                 loss: Callable[[SeparatorBatch], tuple[torch.Tensor, dict[str, float]]],
+                 validate: Callable[[], dict[str, float]], select: str, library: SoundLibrary,
+                 save: Callable[[], None], on_epoch: EpochHook, progress: bool,
+                 rir_cache_dir: Path | None) -> None:
+    """Epochs of one stage from ``state`` on; keeps the best validation ``select`` weights in ``state``."""
+    optimizer = torch.optim.Adam(parameters, lr=config.lr)
+    if state.stage == stage and state.optimizer is not None:
+        optimizer.load_state_dict(state.optimizer)
+    first = state.epoch + 1
+    batches = _batches(config, stream, library, state.epoch * batches_per_epoch, epochs * batches_per_epoch,
+                       rir_cache_dir)
+    for epoch in range(first, epochs + 1):
+        started = time.perf_counter()
+        for module in modules:
+            module.train()
+        sums: dict[str, float] = {}
+        bar = tqdm(range(batches_per_epoch), disable=not progress, desc=f"{stage} epoch {epoch}/{epochs}",
+                   unit="batch", leave=False)
+        for _ in bar:
+            total, parts = loss(next(batches))
+            optimizer.zero_grad()
+            total.backward()
+            optimizer.step()
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0.0) + v
+            bar.set_postfix({k: f"{v:.3f}" for k, v in parts.items()})
+        scores = validate()
+        record = {"epoch": epoch, **{f"train_{k}": v / batches_per_epoch for k, v in sums.items()},
+                  **{f"val_{k}": v for k, v in scores.items()}}
+        state.history[stage].append(record)
+        if stage not in state.best or scores[select] < state.best[stage]["value"]:
+            state.best[stage] = {"epoch": epoch, "value": scores[select],
+                                 "state": copy.deepcopy(separator.state_dict())}
+        state.stage, state.epoch = stage, epoch
+        state.model, state.optimizer = separator.state_dict(), optimizer.state_dict()
+        state.seconds[stage] += time.perf_counter() - started
+        save()
+        on_epoch(stage, record)
+
+
 def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, command: str | None = None,
-             progress: bool = True, n_envs: int = 16, rir_workers: int = 2) -> PretrainResult:
-    """Build/load the data, train both stages, write checkpoint + metadata JSON + loss curve PNG."""
+             progress: bool = True, fresh: bool = False, rir_workers: int = 2, rir_cache_dir: Path | None = None,
+             on_epoch: EpochHook = _print_epoch) -> PretrainResult:
+    """Train both stages (resuming from ``<out stem>.state.pt`` unless ``fresh``), then write the
+    checkpoint, its metadata JSON and the loss curve PNG."""
+    out = Path(out)
     started = time.perf_counter()
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
-    stft_config = config.train_data.env.stft
-    n_slices = config.model.n_freq_slices
-
-    train_set = separator_dataset(config.train_data, library, n_envs=n_envs, rir_workers=rir_workers,
-                                  progress=progress, mmap=False)
-    val_set = separator_dataset(config.val_data, library, n_envs=n_envs, rir_workers=rir_workers,
-                                progress=progress, mmap=False)
-    data_seconds = time.perf_counter() - started
-    train, val = _Tensors.of(train_set, n_slices), _Tensors.of(val_set, n_slices)
     separator = Separator(config.model)
-    history: dict[str, list[dict[str, float]]] = {"stage1": [], "stage2": []}
+    state_file = state_path(out)
+    state = _load_state(state_file, config) if state_file.exists() and not fresh else _State()
+    resumed = {"stage": state.stage, "epoch": state.epoch} if state.model is not None else None
+    if state.model is not None:
+        separator.load_state_dict(state.model)
+    for stream in (config.train_data, config.refiner_data, config.val_data):
+        build_banks(stream, cache_dir=rir_cache_dir, workers=rir_workers, progress=progress)
+    val = fixed_set(BatchSource(config.val_data, library, rir_cache_dir=rir_cache_dir), config.val_batches,
+                    progress=progress)
+    state.seconds["setup"] += time.perf_counter() - started
+    out.parent.mkdir(parents=True, exist_ok=True)
+    common = dict(library=library, save=lambda: _save_state(state_file, config, state), on_epoch=on_epoch,
+                  progress=progress, rir_cache_dir=rir_cache_dir)
 
-    # Stage 1: f^B and f^M together (f^M fed f^B's detached output); keep the best val f^M loss.
-    stage1_params = [*separator.binaural_separator.parameters(), *separator.monaural_predictor.parameters()]
-    optimizer = torch.optim.Adam(stage1_params, lr=config.lr)
-    best_val, best_state, best_epoch = float("inf"), None, 0
-    n_train = train.mixture_logmag.shape[0] * train.steps
-    for epoch in range(1, config.epochs + 1):
-        separator.train()
-        sums, count = np.zeros(2), 0
-        bar = tqdm(_batches(n_train, config.batch_size, rng, config.max_batches), disable=not progress,
-                   desc=f"f^B+f^M epoch {epoch}/{config.epochs}", unit="batch", leave=False)
-        for flat in bar:
-            loss_b, loss_m = _stage1_losses(separator, train, flat)
-            optimizer.zero_grad()
-            (loss_b + loss_m).backward()
-            optimizer.step()
-            losses = np.array([loss_b.item(), loss_m.item()])
-            sums, count = sums + losses * len(flat), count + len(flat)
-            bar.set_postfix(binaural=f"{losses[0]:.3f}", monaural=f"{losses[1]:.3f}")
-        scores = evaluate_stage1(separator, val, config.batch_size * 2)
-        history["stage1"].append({"epoch": epoch, "train_binaural_l1": float(sums[0] / count),
-                                  "train_monaural_l1": float(sums[1] / count), "val_binaural_l1": scores["binaural_l1"],
-                                  "val_monaural_l1": scores["monaural_l1"]})
-        if scores["monaural_l1"] < best_val:
-            best_val, best_epoch = scores["monaural_l1"], epoch
-            best_state = copy.deepcopy(separator.state_dict())
-        if progress:
-            tqdm.write(f"stage 1 epoch {epoch}: " + ", ".join(f"{k} {v:.4f}" for k, v in history["stage1"][-1].items()
-                                                             if k != "epoch"))
-    separator.load_state_dict(best_state)
-    stage1_seconds = time.perf_counter() - started - data_seconds
+    def stage1_loss(batch: SeparatorBatch) -> tuple[torch.Tensor, dict[str, float]]:
+        loss_b, loss_m = _stage1_losses(separator, *batch.observations())
+        return loss_b + loss_m, {"binaural_l1": loss_b.item(), "monaural_l1": loss_m.item()}
 
-    # Stage 2: f^R on sequences of the frozen f^M's estimates; memory reset at each episode start.
-    for module in (separator.binaural_separator, separator.monaural_predictor):
+    def stage2_loss(batch: SeparatorBatch) -> tuple[torch.Tensor, dict[str, float]]:
+        loss = _refiner_loss(separator, batch)
+        return loss, {"refined_l1": loss.item()}
+
+    frozen = (separator.binaural_separator, separator.monaural_predictor)
+    if state.stage == "stage1":
+        _train_stage("stage1", config, state, separator,
+                     [p for m in frozen for p in m.parameters()], list(frozen),
+                     stream=config.train_data, epochs=config.epochs, batches_per_epoch=config.batches_per_epoch,
+                     loss=stage1_loss, validate=lambda: evaluate_stage1(separator, val), select="monaural_l1",
+                     **common)
+        # Stage 2 starts from the best stage-1 weights (its refiner still the untrained one).
+        separator.load_state_dict(state.best["stage1"]["state"])
+        state.stage, state.epoch, state.optimizer = "stage2", 0, None
+    for module in frozen:
         module.eval().requires_grad_(False)
-    train_estimates = _monaural_estimates(separator, train, config.batch_size * 2)
-    val_estimates = _monaural_estimates(separator, val, config.batch_size * 2)
-    optimizer = torch.optim.Adam(separator.refiner.parameters(), lr=config.lr)
-    best_refined, best_refiner, best_refiner_epoch = float("inf"), None, 0
-    for epoch in range(1, config.refiner_epochs + 1):
-        separator.refiner.train()
-        total, count = 0.0, 0
-        bar = tqdm(_batches(train_estimates.shape[0], config.refiner_batch_size, rng, config.max_batches),
-                   disable=not progress, desc=f"f^R epoch {epoch}/{config.refiner_epochs}", unit="batch",
-                   leave=False)
-        for seqs in bar:
-            index = torch.from_numpy(seqs)
-            refined = _refine_sequences(separator, train_estimates[index])
-            loss = F.l1_loss(refined, train.target_monaural[index].float()[:, None].expand_as(refined))
-            optimizer.zero_grad()
-            loss.backward()
-            optimizer.step()
-            total, count = total + loss.item() * len(seqs), count + len(seqs)
-            bar.set_postfix(refined=f"{loss.item():.3f}")
-        scores = evaluate_refiner(separator, val_estimates, val.target_monaural.float())
-        history["stage2"].append({"epoch": epoch, "train_refined_l1": total / count,
-                                  **{f"val_{k}": v for k, v in scores.items()}})
-        if scores["refined_l1"] < best_refined:
-            best_refined, best_refiner_epoch = scores["refined_l1"], epoch
-            best_refiner = copy.deepcopy(separator.refiner.state_dict())
-        if progress:
-            tqdm.write(f"stage 2 epoch {epoch}: " + ", ".join(f"{k} {v:.4f}" for k, v in history["stage2"][-1].items()
-                                                             if k != "epoch"))
-    separator.refiner.load_state_dict(best_refiner)
+    _train_stage("stage2", config, state, separator, list(separator.refiner.parameters()), [separator.refiner],
+                 stream=config.refiner_data, epochs=config.refiner_epochs,
+                 batches_per_epoch=config.refiner_batches_per_epoch, loss=stage2_loss,
+                 validate=lambda: evaluate_refiner(separator, val), select="refined_l1", **common)
+    separator.load_state_dict(state.best["stage2"]["state"])
     separator.eval().requires_grad_(True)
-    wall = time.perf_counter() - started
 
+    history = state.history
+    best1, best2 = state.best["stage1"]["epoch"], state.best["stage2"]["epoch"]
+    samples = {"stage1": len(history["stage1"]) * config.batches_per_epoch * config.train_data.batch_size,
+               "stage2": len(history["stage2"]) * config.refiner_batches_per_epoch * config.refiner_data.batch_size
+               * config.refiner_data.steps}
+    seconds = {k: round(v, 1) for k, v in state.seconds.items()}
     metadata = {
         "command": command or "pretrain()",
-        "seed": config.seed, "lr": config.lr, "batch_size": config.batch_size, "epochs": config.epochs,
-        "refiner_batch_size": config.refiner_batch_size, "refiner_epochs": config.refiner_epochs,
-        "max_batches": config.max_batches, "threads": config.threads,
+        "config": {k: v for k, v in dataclasses.asdict(config).items() if k not in ("model",)},
+        "epochs_run": {stage: len(history[stage]) for stage in STAGES},
         "parameters": count_parameters(separator),
-        "mixture_power": float(np.mean(train_set.mixture_power)),
+        # What m2h-separate scales recordings to: the unaugmented conditions the separator is scored in.
+        "mixture_power": float(torch.cat([b.power.flatten() for b in val]).mean()),
         "library_fingerprint": library.fingerprint,
-        "data": {name: {"sequences": data.n_sequences, "steps": data.steps, "observations": data.n_samples,
-                        "bytes": data.nbytes(), "cache": str(data.path), "config": cfg.to_dict(),
-                        "build": {k: data.meta.get(k) for k in ("rir_nodes_simulated", "rir_seconds",
-                                                                 "record_seconds")}}
-                 for name, data, cfg in (("train", train_set, config.train_data), ("val", val_set, config.val_data))},
-        "best_epoch": best_epoch, "best_refiner_epoch": best_refiner_epoch,
-        "final": {**{k: v for k, v in history["stage1"][best_epoch - 1].items() if k != "epoch"},
-                  **{k: v for k, v in history["stage2"][best_refiner_epoch - 1].items() if k != "epoch"}},
+        "observations_seen": samples,
+        "validation": {"sequences": config.val_batches * config.val_data.batch_size, "steps": config.val_data.steps},
+        "best_epoch": best1, "best_refiner_epoch": best2,
+        "final": {**{k: v for k, v in history["stage1"][best1 - 1].items() if k != "epoch"},
+                  **{k: v for k, v in history["stage2"][best2 - 1].items() if k != "epoch"}},
         "history": history,
-        "wall_seconds": {"data": round(data_seconds, 1), "stage1": round(stage1_seconds, 1),
-                         "stage2": round(wall - data_seconds - stage1_seconds, 1), "total": round(wall, 1)},
+        "resumed_from": resumed,
+        "wall_seconds": {**seconds, "total": round(sum(state.seconds.values()), 1)},
+        "observations_per_second": {s: round(samples[s] / max(state.seconds[s], 1e-9), 1) for s in STAGES},
         "machine": _machine(),
     }
-    out = Path(out)
-    save_separator(out, separator, classes=list(TARGET_CATEGORIES), stft_config=stft_config, metadata=metadata)
+    save_separator(out, separator, classes=list(TARGET_CATEGORIES), stft_config=config.train_data.env.stft,
+                   metadata=metadata)
     out.with_suffix(".json").write_text(json.dumps(metadata, indent=1) + "\n")
     plot_losses(out.with_name(f"{out.stem}_loss.png"), history)
+    state_file.unlink(missing_ok=True)
     return PretrainResult(separator, out, metadata)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Pretrain the passive separator (f^B, f^M, f^R) on simulator data.")
-    parser.add_argument("--preset", choices=PRESET_NAMES, default="compact", help="model size (default compact)")
-    parser.add_argument("--seed", type=int, default=0, help="weights and batch order")
-    parser.add_argument("--data-seed", type=int, default=0, help="episodes, random policy and clip variants")
-    parser.add_argument("--out", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="checkpoint path")
     defaults = PretrainConfig()
+    parser.add_argument("--preset", choices=PRESET_NAMES, default="compact", help="model size (default compact)")
+    parser.add_argument("--seed", type=int, default=0, help="weights")
+    parser.add_argument("--data-seed", type=int, default=0, help="training streams (validation set: fixed)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="checkpoint path")
     parser.add_argument("--epochs", type=int, default=defaults.epochs, help="stage 1 (f^B + f^M) epochs")
+    parser.add_argument("--batches-per-epoch", type=int, default=defaults.batches_per_epoch,
+                        help=f"stage 1 batches of {defaults.train_data.batch_size} observations per epoch")
     parser.add_argument("--refiner-epochs", type=int, default=defaults.refiner_epochs, help="stage 2 (f^R) epochs")
-    parser.add_argument("--batch-size", type=int, default=defaults.batch_size)
-    parser.add_argument("--threads", type=int, default=defaults.threads, help="torch threads")
-    parser.add_argument("--max-batches", type=int, default=None, help="cap batches per epoch (smoke runs)")
+    parser.add_argument("--refiner-batches-per-epoch", type=int, default=defaults.refiner_batches_per_epoch,
+                        help=f"stage 2 batches of {defaults.refiner_data.batch_size} sequences of "
+                             f"{defaults.refiner_data.steps} observations per epoch")
+    parser.add_argument("--train-scenes", type=int, default=None,
+                        help="draw from the first N training scenes only (default: all)")
+    parser.add_argument("--source-nodes", type=int, default=None,
+                        help="place sources on this many nodes per scene only (fewer RIR source nodes to "
+                             "simulate; default: every node)")
+    parser.add_argument("--threads", type=int, default=defaults.threads, help="torch threads of the trainer")
+    parser.add_argument("--workers", type=int, default=defaults.workers, help="data loader processes")
+    parser.add_argument("--fresh", action="store_true", help="ignore a saved training state and start afresh")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = PretrainConfig(model=SeparatorConfig.preset(args.preset), seed=args.seed, epochs=args.epochs,
-                            refiner_epochs=args.refiner_epochs, batch_size=args.batch_size, threads=args.threads,
-                            max_batches=args.max_batches,
-                            train_data=SeparatorDataConfig.training(seed=args.data_seed),
-                            val_data=SeparatorDataConfig.validation(seed=args.data_seed))
+                            batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
+                            refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
+                            workers=args.workers,
+                            train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
+                                                             source_nodes=args.source_nodes),
+                            refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,
+                                                             scenes=args.train_scenes, source_nodes=args.source_nodes),
+                            val_data=StreamConfig.validation(source_nodes=args.source_nodes))
     command = shlex.join([Path(sys.argv[0]).name, *(sys.argv[1:] if argv is None else argv)])
-    result = pretrain(config, SoundLibrary.load(), out=args.out, command=command)
+    result = pretrain(config, SoundLibrary.load(), out=args.out, command=command, fresh=args.fresh)
     final, wall = result.metadata["final"], result.metadata["wall_seconds"]
-    print(f"wrote {result.checkpoint} ({result.checkpoint.stat().st_size / 2**20:.1f} MiB) in {wall['total']:.0f} s; "
-          f"val monaural L1 {final['val_monaural_l1']:.4f}, refined L1 {final['val_refined_l1']:.4f}")
+    print(f"wrote {repo_relative(result.checkpoint)} ({result.checkpoint.stat().st_size / 2**20:.1f} MiB) in "
+          f"{wall['total']:.0f} s; val monaural L1 {final['val_monaural_l1']:.4f}, refined L1 "
+          f"{final['val_refined_l1']:.4f}, f^B {final['val_binaural_l1']:.4f} vs identity mask "
+          f"{final['val_identity_mask_binaural_l1']:.4f}")
     return 0
 
 

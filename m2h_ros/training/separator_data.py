@@ -1,40 +1,46 @@
-"""Separator pretraining data, recorded from the simulator (numpy only; cached on disk).
+"""Separator training data drawn on the fly from the simulator (a torch IterableDataset).
 
-A dataset is a set of *sequences*: one episode played by a seeded random policy for ``steps``
-observations (step 0 = the start pose, then ``steps - 1`` random MoveForward / TurnLeft / TurnRight
-actions). Per observation it keeps the binaural mixture's log(1 + |STFT|) (2 x 512 x 32, what the
-environment publishes) and the magnitude of the target alone as heard (``info["target_binaural"]``,
-2 x 512 x 32); per sequence the magnitude of the target's dry monaural clip (512 x 32: each source
-plays one clip for the whole episode), the target class index and the number of sources (the
-mixture is the sum of the renders divided by it, so the target's share of the mixture is
-target_binaural / n_sources). Keeping whole sequences lets the acoustic-memory refiner f^R train on
-the estimates of consecutive steps.
+Nothing is recorded: batch ``i`` of a :class:`StreamConfig` is a pure function of ``(seed, i)``, so
+any number of DataLoader worker processes (each renders every ``workers``-th batch in its own
+``BatchEnv``) and any resume point give the same batches in the same order.
 
-RIR simulation (seconds per source node) dominates the cost of new geometry, clips cost nothing, so
-each episode's geometry can be replayed with ``sound_variants`` independently drawn clip sets (same
-categories and sound split; variant 0 is the episode as generated).
+One *sequence* of a batch:
 
-Cache: ``data_dir()/separator_data/v<VERSION>/<key>/`` with ``.npy`` arrays (float16 spectrograms)
-and ``meta.json``; the key hashes the config, the sound library's fingerprint and the version.
+1. an episode drawn afresh (``episodes.draw_episode``): a template of ``config.episodes`` (task,
+   splits, placement rules) picked uniformly, then a scene of its split uniformly, then the source
+   placement (minimum inter-source distance), a start pose, categories and clips;
+2. a random walk of 0..``max_walk`` actions from that start (the random policy below, applied to the
+   navigation grid without rendering), so observations cover the poses an agent visits, not only
+   start poses;
+3. ``steps`` observations rendered by ``BatchEnv`` from there (the policy acting between them), with
+   the augmentation (training only): each source's clip scaled by a gain uniform in +-``gain_db`` dB
+   (target and distractors drawn independently) and, in a ``noise_fraction`` of the sequences,
+   microphone noise of a level drawn from ``noise_levels``: white noise per ear of std level x the
+   RMS of the clean mixture, the environment's ``EnvConfig.mic_noise`` model.
+
+Per observation a batch holds |STFT| of the (augmented) binaural mixture, what the separator takes,
+and |STFT| of the target's share of it (its render x gain / number of sources: the mixture is the
+sum of the renders divided by that number, so this is what a ratio mask can reach); per sequence
+|STFT| of the dry target clip x its gain and the class index. Tensors are in the sliced layout.
+The sound library and the RIR banks come in through ``fork`` (workers share their pages).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
-import os
-import shutil
-import tempfile
-import time
+import zlib
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
 from tqdm import tqdm
 
-from m2h_ros.core.audio.stft import stft
+from m2h_ros.core.audio.stft import stft, to_slices
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
@@ -44,253 +50,292 @@ from m2h_ros.core.world.episodes import (
     TURN_RIGHT,
     Episode,
     EpisodeConfig,
-    episodes_for,
+    draw_episode,
     scene_at,
 )
+from m2h_ros.core.world.navgrid import NavGrid, turn_left, turn_right
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.errors import CacheError, ConfigError
-from m2h_ros.paths import data_dir
+from m2h_ros.core.world.scene import Scene, load_split
+from m2h_ros.errors import ConfigError
 
-DATA_VERSION = 1
 # The random policy: forward half of the time so the agent travels, turns otherwise (never Stop,
 # which would end a far-target episode early).
 POLICY_ACTIONS = np.array([MOVE_FORWARD, TURN_LEFT, TURN_RIGHT])
 POLICY_PROBS = np.array([0.5, 0.25, 0.25])
-_ARRAYS = ("mixture_logmag", "target_binaural", "target_monaural", "class_index", "n_sources", "mixture_power")
+# Microphone noise levels of the training augmentation (std relative to the clean mixture's RMS,
+# SNR 26 / 20 / 14 dB): the levels to run the noise-robustness experiment at.
+MIC_NOISE_LEVELS = (0.05, 0.1, 0.2)
+_STREAM_SALT = 0x736570  # separates the stream's draws from other uses of the same seed
+_SUBSET_SALT = 0x6E6F6465
 
 
 def _audio_only() -> EnvConfig:
     return EnvConfig(camera=False)
 
 
-@dataclass(frozen=True)
-class SeparatorDataConfig:
-    """Which episodes are recorded and how; every field is part of the cache key."""
+def _near_and_far(split: str, sound_split: str) -> tuple[EpisodeConfig, ...]:
+    return tuple(EpisodeConfig(task=task, scene_split=split, sound_split=sound_split)
+                 for task in ("near_target", "far_target"))
 
-    episodes: tuple[EpisodeConfig, ...]
-    sound_variants: int = 1  # clip sets per episode geometry (variant 0 = the episode's own clips)
-    steps: int = 11  # observations per sequence: the start pose + steps - 1 random actions
-    seed: int = 0  # random policy and variant clips
+
+@dataclass(frozen=True)
+class StreamConfig:
+    """What a stream draws; every field changes the batches."""
+
+    episodes: tuple[EpisodeConfig, ...]  # templates (``count`` and ``seed`` are not used)
+    scenes: int | None = None  # only the first this many scenes of each template's split (None: all)
+    source_nodes: int | None = None  # sources only on this many nodes per scene (see source_subset)
+    batch_size: int = 16  # sequences per batch
+    steps: int = 1  # observations per sequence
+    max_walk: int = 19  # random actions before the first observation: uniform in 0..max_walk
+    gain_db: float = 0.0  # per-source gain uniform in [-gain_db, +gain_db] dB
+    noise_levels: tuple[float, ...] = ()  # microphone noise levels, one drawn per noisy sequence
+    noise_fraction: float = 0.0  # share of sequences with microphone noise
+    seed: int = 0
     env: EnvConfig = field(default_factory=_audio_only)
 
     def __post_init__(self) -> None:
         if not self.episodes or not all(isinstance(e, EpisodeConfig) for e in self.episodes):
-            raise ConfigError(f"SeparatorDataConfig.episodes must be a non-empty tuple of EpisodeConfig, "
-                              f"got {self.episodes!r}")
+            raise ConfigError(f"StreamConfig.episodes must be a non-empty tuple of EpisodeConfig, got {self.episodes!r}")
         object.__setattr__(self, "episodes", tuple(self.episodes))
-        for name, low in (("sound_variants", 1), ("steps", 1), ("seed", 0)):
+        object.__setattr__(self, "noise_levels", tuple(float(v) for v in self.noise_levels))
+        for name in ("scenes", "source_nodes"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise ConfigError(f"StreamConfig.{name} must be None or an int >= 1, got {value!r}")
+        for name, low in (("batch_size", 2), ("steps", 1), ("max_walk", 0), ("seed", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"SeparatorDataConfig.{name} must be an int >= {low}, got {value!r}")
+                raise ConfigError(f"StreamConfig.{name} must be an int >= {low}, got {value!r}")
+        if len({e.n_distractors for e in self.episodes}) != 1:
+            raise ConfigError("StreamConfig.episodes must all have the same n_distractors (one BatchEnv holds them)")
         too_short = [e for e in self.episodes if e.steps < self.steps - 1]
         if too_short:
-            raise ConfigError(f"SeparatorDataConfig.steps={self.steps} needs episodes of at least "
-                              f"{self.steps - 1} steps; {too_short[0]} has {too_short[0].steps}")
-        if not isinstance(self.env, EnvConfig) or self.env.camera:
-            raise ConfigError("SeparatorDataConfig.env must be an EnvConfig with camera=False")
+            raise ConfigError(f"StreamConfig.steps={self.steps} needs episodes of at least {self.steps - 1} "
+                              f"steps; {too_short[0]} has {too_short[0].steps}")
+        if not (np.isfinite(self.gain_db) and 0 <= self.gain_db <= 20):
+            raise ConfigError(f"StreamConfig.gain_db must be in [0, 20], got {self.gain_db!r}")
+        if not 0 <= self.noise_fraction <= 1 or (self.noise_fraction > 0 and not self.noise_levels):
+            raise ConfigError(f"StreamConfig.noise_fraction must be in [0, 1] (> 0 needs noise_levels), "
+                              f"got {self.noise_fraction!r} with levels {self.noise_levels}")
+        if not all(np.isfinite(v) and v > 0 for v in self.noise_levels):
+            raise ConfigError(f"StreamConfig.noise_levels must be positive, got {self.noise_levels}")
+        if not isinstance(self.env, EnvConfig) or self.env.camera or self.env.mic_noise:
+            raise ConfigError("StreamConfig.env must be an EnvConfig with camera=False and mic_noise=0 "
+                              "(the stream adds its own noise, after the gains)")
 
     @classmethod
-    def _near_and_far(cls, split: str, sound_split: str, near: int, far: int, *, seed: int,
-                      sound_variants: int) -> SeparatorDataConfig:
-        return cls(episodes=tuple(
-            EpisodeConfig(task=task, scene_split=split, sound_split=sound_split, count=count, seed=seed)
-            for task, count in (("near_target", near), ("far_target", far))),
-            sound_variants=sound_variants, steps=11, seed=seed)
+    def training(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 1, scenes: int | None = None,
+                 source_nodes: int | None = None) -> StreamConfig:
+        """Train scenes, heard sounds, near and far starts, gain +-3 dB, noise in half the sequences."""
+        return cls(episodes=_near_and_far("train", "heard"), scenes=scenes, source_nodes=source_nodes,
+                   batch_size=batch_size, steps=steps, gain_db=3.0, noise_levels=MIC_NOISE_LEVELS,
+                   noise_fraction=0.5, seed=seed)
 
     @classmethod
-    def training(cls, *, seed: int = 0) -> SeparatorDataConfig:
-        """Default pretraining set: train scenes, heard sounds, near and far starts (see docs)."""
-        return cls._near_and_far("train", "heard", 96, 48, seed=seed, sound_variants=4)
-
-    @classmethod
-    def validation(cls, *, seed: int = 0) -> SeparatorDataConfig:
-        """Default validation set: val scenes, unheard sounds."""
-        return cls._near_and_far("val", "unheard", 36, 12, seed=seed, sound_variants=1)
-
-    @property
-    def n_sequences(self) -> int:
-        return sum(e.count for e in self.episodes) * self.sound_variants
+    def validation(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 8,
+                   source_nodes: int | None = None) -> StreamConfig:
+        """Val scenes, unheard sounds, no augmentation (the test conditions)."""
+        return cls(episodes=_near_and_far("val", "unheard"), source_nodes=source_nodes, batch_size=batch_size,
+                   steps=steps, seed=seed)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
-    def key(self, library: SoundLibrary) -> str:
-        text = json.dumps({"config": self.to_dict(), "library": library.fingerprint, "version": DATA_VERSION},
-                          sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
 
-    def path(self, library: SoundLibrary) -> Path:
-        return data_dir() / "separator_data" / f"v{DATA_VERSION}" / self.key(library)
+def stream_scenes(config: StreamConfig, template: EpisodeConfig) -> list[Scene]:
+    """The scenes a stream draws from for one template: its split's, or the first ``config.scenes``."""
+    scenes = load_split(template.scene_split, preset=template.scene_preset)
+    if config.scenes is not None and config.scenes > len(scenes):
+        raise ConfigError(f"StreamConfig.scenes={config.scenes}, but split {template.scene_split!r} has "
+                          f"{len(scenes)} scenes")
+    return scenes[: config.scenes]
+
+
+def source_subset(scene: Scene, count: int | None) -> np.ndarray | None:
+    """The nodes a stream may place sources on in ``scene``: ``count`` of them, the same for every
+    stream and seed (seeded by the scene id), so one set of RIR source nodes serves them all; None: any."""
+    if count is None or count >= scene.grid.n_nodes:
+        return None
+    rng = np.random.default_rng([_SUBSET_SALT, zlib.crc32(scene.scene_id.encode())])
+    return np.sort(rng.permutation(scene.grid.n_nodes)[:count])
+
+
+class SeparatorBatch(NamedTuple):
+    """One batch in the sliced layout (S' = frequency slices): B sequences of T observations."""
+
+    index: int  # position in the stream
+    mixture: torch.Tensor  # (B, T, 2S', H, W) |STFT| of the binaural mixture
+    share: torch.Tensor  # (B, T, 2S', H, W) |STFT| of the target's share of the mixture
+    monaural: torch.Tensor  # (B, S', H, W) |STFT| of the dry target clip (x its gain)
+    class_index: torch.Tensor  # (B,) int64, index into TARGET_CATEGORIES
+    power: torch.Tensor  # (B, T) mean power of the mixture waveform
+
+    def observations(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The batch as B*T single observations: (mixture, share, monaural, class)."""
+        b, t = self.mixture.shape[:2]
+        return (self.mixture.flatten(0, 1), self.share.flatten(0, 1),
+                self.monaural.repeat_interleave(t, dim=0), self.class_index.repeat_interleave(t))
+
+
+def policy_actions(rng: np.random.Generator, n: int) -> np.ndarray:
+    return rng.choice(POLICY_ACTIONS, size=n, p=POLICY_PROBS)
+
+
+def walk(grid: NavGrid, node: int, heading: int, actions: np.ndarray) -> tuple[int, int]:
+    """The pose after ``actions`` (the environment's motion rule, without rendering)."""
+    for action in actions.tolist():
+        if action == MOVE_FORWARD:
+            node = int(grid.forward[node, heading])
+        elif action == TURN_LEFT:
+            heading = int(turn_left(heading))
+        elif action == TURN_RIGHT:
+            heading = int(turn_right(heading))
+    return node, heading
 
 
 @dataclass(frozen=True)
-class SeparatorDataset:
-    """Recorded sequences: S sequences of T observations (arrays may be memory-mapped)."""
+class _Plan:
+    """The draws of one batch: episodes (starting at the walked pose), actions, gains, noise."""
 
-    mixture_logmag: np.ndarray  # (S, T, 2, F, T') float16, log(1 + |mixture STFT|)
-    target_binaural: np.ndarray  # (S, T, 2, F, T') float16, |STFT| of the target alone as heard
-    target_monaural: np.ndarray  # (S, F, T') float16, |STFT| of the target's dry clip
-    class_index: np.ndarray  # (S,) int64, index into TARGET_CATEGORIES
-    n_sources: np.ndarray  # (S,) int64
-    mixture_power: np.ndarray  # (S, T) float32, mean power of the mixture waveform
-    path: Path | None = None
-    meta: dict = field(default_factory=dict)  # meta.json: config, library, build times
-
-    @property
-    def n_sequences(self) -> int:
-        return self.mixture_logmag.shape[0]
-
-    @property
-    def steps(self) -> int:
-        return self.mixture_logmag.shape[1]
-
-    @property
-    def n_samples(self) -> int:
-        return self.n_sequences * self.steps
-
-    def nbytes(self) -> int:
-        return sum(getattr(self, name).nbytes for name in _ARRAYS)
+    episodes: list[Episode]
+    actions: np.ndarray  # (B, steps - 1)
+    gains: np.ndarray  # (B, 2) linear: target, distractors
+    noise: np.ndarray  # (B,) level, 0 = none
+    noise_seeds: np.ndarray  # (B,)
 
 
-def variant_episodes(episodes: list[Episode], library: SoundLibrary, *, variants: int, seed: int) -> list[Episode]:
-    """Each episode followed by ``variants - 1`` copies with fresh clips of the same categories."""
-    out = []
-    for index, episode in enumerate(episodes):
-        out.append(episode)
-        for variant in range(1, variants):
-            rng = np.random.default_rng([seed, index, variant])
-            clips = tuple(library.sample(rng, category=c, split=episode.sound_split)[1]
-                          for c in episode.source_categories)
-            out.append(dataclasses.replace(episode, episode_id=f"{episode.episode_id}/v{variant}",
-                                           source_clips=clips, seed=int(rng.integers(2**31))))
-    return out
+class BatchSource:
+    """Renders batches of a stream; holds one BatchEnv, built on first use (in the worker process)."""
+
+    def __init__(self, config: StreamConfig, library: SoundLibrary, *, rir_cache_dir: Path | None = None) -> None:
+        self.config, self.library, self.rir_cache_dir = config, library, rir_cache_dir
+        self._candidates = [[source_subset(scene, config.source_nodes) for scene in stream_scenes(config, e)]
+                            for e in config.episodes]
+        self._env: BatchEnv | None = None
+
+    def plan(self, index: int) -> _Plan:
+        cfg = self.config
+        rng = np.random.default_rng([cfg.seed, _STREAM_SALT, index])
+        episodes = []
+        for j in range(cfg.batch_size):
+            which = int(rng.integers(len(cfg.episodes)))
+            template = cfg.episodes[which]
+            scene_index = int(rng.integers(len(self._candidates[which])))
+            episode = draw_episode(rng, template, scene_index, self.library, episode_id=f"stream/{index}/{j}",
+                                   source_candidates=self._candidates[which][scene_index])
+            node, heading = walk(episode.scene().grid, episode.start_node, episode.start_heading,
+                                 policy_actions(rng, int(rng.integers(cfg.max_walk + 1))))
+            episodes.append(dataclasses.replace(episode, start_node=node, start_heading=heading))
+        actions = policy_actions(rng, cfg.batch_size * (cfg.steps - 1)).reshape(cfg.batch_size, cfg.steps - 1)
+        gains = 10.0 ** (rng.uniform(-cfg.gain_db, cfg.gain_db, (cfg.batch_size, 2)) / 20.0)
+        noisy = rng.random(cfg.batch_size) < cfg.noise_fraction
+        levels = np.asarray(cfg.noise_levels or (0.0,))[rng.integers(max(len(cfg.noise_levels), 1), size=cfg.batch_size)]
+        return _Plan(episodes, actions, gains, np.where(noisy, levels, 0.0), rng.integers(2**31, size=cfg.batch_size))
+
+    def batch(self, index: int) -> SeparatorBatch:
+        cfg, plan = self.config, self.plan(index)
+        stft_config = cfg.env.stft
+        if self._env is None:
+            # Single observations of fresh episodes never revisit a pose: no pose cache to fill.
+            self._env = BatchEnv(plan.episodes, self.library, n_envs=cfg.batch_size, config=cfg.env,
+                                 rir_cache_dir=self.rir_cache_dir, autoreset=False,
+                                 pose_cache=32 if cfg.steps > 1 else 0)
+        n_sources = np.array([len(e.source_nodes) for e in plan.episodes], np.float32)[:, None, None]
+        target_gain, other_gain = (plan.gains[:, i, None, None].astype(np.float32) for i in range(2))
+        noise_rngs = [np.random.default_rng(int(s)) for s in plan.noise_seeds]
+        mixtures, shares, powers = [], [], []
+        obs, info = self._env.reset(episodes=plan.episodes)
+        for step in range(cfg.steps):
+            if step:
+                obs, _, _, _, info = self._env.step(plan.actions[:, step - 1])
+            share = info["target_binaural"] / n_sources
+            mixture = target_gain * share + other_gain * (obs["audio"] - share)
+            rms = np.sqrt(np.mean(np.square(mixture), axis=(1, 2)))
+            for row in np.flatnonzero(plan.noise):
+                noise = noise_rngs[row].standard_normal(mixture.shape[1:], dtype=np.float32)
+                mixture[row] += np.float32(plan.noise[row] * rms[row]) * noise
+            powers.append(np.mean(np.square(mixture), axis=(1, 2)))
+            mixtures.append(np.abs(stft(mixture, config=stft_config)))
+            shares.append(np.abs(stft(target_gain * share, config=stft_config)))
+        monaural = np.abs(stft(target_gain[:, 0] * info["target_monaural"], config=stft_config))[:, None]
+
+        def sliced(array: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(to_slices(array, n_slices=stft_config.n_freq_slices)))
+
+        return SeparatorBatch(index, sliced(np.stack(mixtures, axis=1)), sliced(np.stack(shares, axis=1)),
+                              sliced(monaural), torch.from_numpy(obs["target_class"].astype(np.int64)),
+                              torch.from_numpy(np.stack(powers, axis=1)))
+
+    def close(self) -> None:
+        if self._env is not None:
+            self._env.close()
+            self._env = None
 
 
-def policy_actions(seed: int, sequence: int, n_actions: int) -> np.ndarray:
-    """The random policy's actions for one sequence (independent of batching)."""
-    rng = np.random.default_rng([seed, sequence])
-    return rng.choice(POLICY_ACTIONS, size=n_actions, p=POLICY_PROBS)
+class SeparatorStream(IterableDataset):
+    """Batches ``start, start + 1, ..., stop - 1`` of a source, in order, over any number of workers
+    (worker k renders the batches congruent to k; the DataLoader takes them round-robin). Use
+    ``DataLoader(stream, batch_size=None, num_workers=w)``."""
+
+    def __init__(self, source: BatchSource, start: int, stop: int) -> None:
+        if not 0 <= start <= stop:
+            raise ConfigError(f"SeparatorStream needs 0 <= start <= stop, got {start}, {stop}")
+        self.source, self.start, self.stop = source, start, stop
+
+    def __iter__(self) -> Iterator[SeparatorBatch]:
+        worker = get_worker_info()
+        first, step = (0, 1) if worker is None else (worker.id, worker.num_workers)
+        if worker is not None:
+            torch.set_num_threads(1)  # the worker's work is numpy/scipy; leave the cores to training
+        try:
+            for index in range(self.start + first, self.stop, step):
+                yield self.source.batch(index)
+        finally:
+            if worker is not None:
+                self.source.close()
+
+    def __len__(self) -> int:
+        return self.stop - self.start
+
+
+def fixed_set(source: BatchSource, n_batches: int, *, progress: bool = True) -> list[SeparatorBatch]:
+    """The first ``n_batches`` batches of a stream, rendered now (a fixed validation set)."""
+    try:
+        return [source.batch(i) for i in tqdm(range(n_batches), desc="validation set", unit="batch",
+                                               disable=not progress)]
+    finally:
+        source.close()
+
+
+def build_banks(config: StreamConfig, *, cache_dir: Path | None = None, workers: int = 2,
+                progress: bool = True) -> int:
+    """Simulate every missing RIR source node the stream can place a source on (all nodes of its
+    scenes, or their ``source_subset``), on ``workers`` processes, so that no data worker stalls on
+    RIR simulation. Returns the number of source nodes simulated."""
+    jobs = []
+    for template in {(e.scene_split, e.scene_preset): e for e in config.episodes}.values():
+        for index, scene in enumerate(stream_scenes(config, template)):
+            bank = RirBank(scene, config.env.acoustics, cache_dir=cache_dir, progress=False)
+            subset = source_subset(scene, config.source_nodes)
+            nodes = range(scene.grid.n_nodes) if subset is None else subset.tolist()
+            jobs += [(template.scene_split, template.scene_preset, index, node) for node in nodes
+                     if not bank.path(node).exists()]
+    bar = tqdm(total=len(jobs), desc="RIR source nodes", unit="src", disable=not (progress and jobs))
+    if workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for future in [pool.submit(_simulate_source, *job, config.env.acoustics, cache_dir) for job in jobs]:
+                future.result()
+                bar.update()
+    else:
+        for job in jobs:
+            _simulate_source(*job, config.env.acoustics, cache_dir)
+            bar.update()
+    bar.close()
+    return len(jobs)
 
 
 def _simulate_source(split: str, preset: str, index: int, node: int, acoustics: AcousticsConfig,
                      cache_dir: Path | None) -> None:
     """Worker: compute one source node's RIRs into the bank cache (rirs() builds missing nodes)."""
     RirBank(scene_at(split, preset, index), acoustics, cache_dir=cache_dir, progress=False).rirs([node], [0], [0])
-
-
-def prebuild_rirs(episodes: list[Episode], acoustics: AcousticsConfig, *, cache_dir: Path | None = None,
-                  workers: int = 2, progress: bool = True) -> int:
-    """Simulate the source nodes the episodes need that are not cached yet, in parallel processes.
-
-    The environment would compute them lazily in its own process; this does it on ``workers`` cores
-    first. Returns the number of source nodes simulated.
-    """
-    needed = sorted({(e.scene_split, e.scene_preset, e.scene_index, node) for e in episodes for node in e.source_nodes})
-    missing = [job for job in needed
-               if not RirBank(scene_at(*job[:3]), acoustics, cache_dir=cache_dir, progress=False).path(job[3]).exists()]
-    if not missing:
-        return 0
-    bar = tqdm(total=len(missing), desc="RIR source nodes", unit="src", disable=not progress)
-    if workers > 1 and len(missing) > 1:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for future in [pool.submit(_simulate_source, *job, acoustics, cache_dir) for job in missing]:
-                future.result()
-                bar.update()
-    else:
-        for job in missing:
-            _simulate_source(*job, acoustics, cache_dir)
-            bar.update()
-    bar.close()
-    return len(missing)
-
-
-def record(config: SeparatorDataConfig, library: SoundLibrary, out: Path, *, n_envs: int = 16,
-           rir_cache_dir: Path | None = None, progress: bool = True) -> None:
-    """Play every sequence in the environment and write the arrays into the folder ``out``."""
-    episodes = [e for c in config.episodes for e in episodes_for(c, library)]
-    sequences = variant_episodes(episodes, library, variants=config.sound_variants, seed=config.seed)
-    s, t, stft_config = len(sequences), config.steps, config.env.stft
-    spec_shape = (2, stft_config.n_freq, stft_config.n_frames)
-    out.mkdir(parents=True, exist_ok=True)
-
-    def create(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
-        return np.lib.format.open_memmap(out / f"{name}.npy", mode="w+", dtype=dtype, shape=shape)
-
-    arrays = {"mixture_logmag": create("mixture_logmag", (s, t, *spec_shape), np.float16),
-              "target_binaural": create("target_binaural", (s, t, *spec_shape), np.float16),
-              "target_monaural": create("target_monaural", (s, *spec_shape[1:]), np.float16),
-              "class_index": create("class_index", (s,), np.int64),
-              "n_sources": create("n_sources", (s,), np.int64),
-              "mixture_power": create("mixture_power", (s, t), np.float32)}
-    arrays["n_sources"][:] = [len(e.source_nodes) for e in sequences]
-    n_envs = min(n_envs, s)
-    env = BatchEnv(sequences, library, n_envs=n_envs, config=config.env, rir_cache_dir=rir_cache_dir,
-                   autoreset=False)
-    try:
-        with tqdm(total=s * t, desc="recording", unit="obs", disable=not progress) as bar:
-            for first in range(0, s, n_envs):
-                rows = np.arange(first, min(first + n_envs, s))
-                # A short last batch pads its free slots with its first sequence and drops them.
-                slots = np.concatenate([rows, np.full(n_envs - len(rows), rows[0])])
-                actions = np.stack([policy_actions(config.seed, int(i), t - 1) for i in slots])
-                obs, info = env.reset(episodes=[sequences[i] for i in slots])
-                keep = slice(0, len(rows))
-                arrays["class_index"][rows] = obs["target_class"][keep]
-                arrays["target_monaural"][rows] = np.abs(stft(info["target_monaural"][keep], config=stft_config))
-                for step in range(t):
-                    if step:
-                        obs, _, _, _, info = env.step(actions[:, step - 1])
-                    arrays["mixture_logmag"][rows, step] = obs["spectrogram"][keep]
-                    arrays["target_binaural"][rows, step] = np.abs(stft(info["target_binaural"][keep],
-                                                                        config=stft_config))
-                    arrays["mixture_power"][rows, step] = np.mean(np.square(obs["audio"][keep]), axis=(1, 2))
-                    bar.update(len(rows))
-    finally:
-        env.close()
-    for array in arrays.values():
-        array.flush()
-    del arrays
-
-
-def load_dataset(path: Path, *, mmap: bool = True) -> SeparatorDataset:
-    """Open a recorded dataset folder; CacheError if it is incomplete or inconsistent."""
-    try:
-        meta = json.loads((path / "meta.json").read_text())
-        arrays = {name: np.load(path / f"{name}.npy", mmap_mode="r" if mmap else None) for name in _ARRAYS}
-    except (OSError, ValueError, KeyError) as exc:
-        raise CacheError(f"separator dataset at {path} is incomplete or corrupt ({exc}): delete it to rebuild") from exc
-    s, t = arrays["mixture_logmag"].shape[:2]
-    if meta.get("version") != DATA_VERSION or meta.get("n_sequences") != s or meta.get("steps") != t \
-            or any(arrays[name].shape[0] != s for name in _ARRAYS):
-        raise CacheError(f"separator dataset at {path} does not match its meta.json: delete it to rebuild")
-    return SeparatorDataset(**arrays, path=path, meta=meta)
-
-
-def separator_dataset(config: SeparatorDataConfig, library: SoundLibrary, *, n_envs: int = 16,
-                      rir_workers: int = 2, rir_cache_dir: Path | None = None, progress: bool = True,
-                      mmap: bool = True) -> SeparatorDataset:
-    """The dataset of ``config``: from the cache, or simulated now (RIRs first) and cached atomically."""
-    final = config.path(library)
-    if (final / "meta.json").exists():
-        return load_dataset(final, mmap=mmap)
-    started = time.perf_counter()
-    episodes = [e for c in config.episodes for e in episodes_for(c, library)]
-    simulated = prebuild_rirs(episodes, config.env.acoustics, cache_dir=rir_cache_dir, workers=rir_workers,
-                              progress=progress)
-    rir_seconds = time.perf_counter() - started
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent))
-    try:
-        record(config, library, tmp, n_envs=n_envs, rir_cache_dir=rir_cache_dir, progress=progress)
-        meta = {"version": DATA_VERSION, "config": config.to_dict(), "library": library.fingerprint,
-                "n_sequences": config.n_sequences, "steps": config.steps,
-                "rir_nodes_simulated": simulated, "rir_seconds": round(rir_seconds, 1),
-                "record_seconds": round(time.perf_counter() - started - rir_seconds, 1)}
-        (tmp / "meta.json").write_text(json.dumps(meta, indent=1))
-        if final.exists():  # a half-written folder of an interrupted run (no meta.json)
-            shutil.rmtree(final)
-        os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
-    return load_dataset(final, mmap=mmap)

@@ -1,5 +1,5 @@
 """Fixtures of the training tests: the synthetic folder library (test/conftest.py), small scenes,
-fast acoustics, and one data dir per session (datasets and RIR banks are built once)."""
+fast acoustics, and one data dir per session (RIR banks are built once)."""
 
 import dataclasses
 from pathlib import Path
@@ -9,7 +9,7 @@ import pytest
 from m2h_ros.core.sounds.sources import sources_dir
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
-from m2h_ros.training.separator_data import SeparatorDataConfig, SeparatorDataset, separator_dataset
+from m2h_ros.training.separator_data import StreamConfig
 
 SMALL = dict(scene_preset="small", min_source_distance=3.0)
 
@@ -19,14 +19,18 @@ def training_data_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("training_data")
 
 
-# The HRTF comes from the fetched sound sources of the real data dir, which _data_dir hides.
-SOUND_SOURCES = sources_dir()
+@pytest.fixture(scope="session", autouse=True)
+def _sound_sources():
+    """The KEMAR HRTF comes from the sound sources (unless libmysofa1 is installed): keep finding
+    them where they are while the data dir points at a per-session folder."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("M2H_SOUND_SOURCES", str(sources_dir()))
+        yield
 
 
 @pytest.fixture(autouse=True)
 def _data_dir(monkeypatch, training_data_dir):
     monkeypatch.setenv("M2H_DATA_DIR", str(training_data_dir))
-    monkeypatch.setenv("M2H_SOUND_SOURCES", str(SOUND_SOURCES))
 
 
 @pytest.fixture(scope="session")
@@ -36,26 +40,26 @@ def fast_env(fast_acoustics) -> EnvConfig:
 
 
 @pytest.fixture(scope="session")
-def small_train_data(fast_env) -> SeparatorDataConfig:
-    """5 episodes (3 near, 2 far) x 2 clip variants = 10 sequences of 4 observations."""
-    return SeparatorDataConfig(episodes=(
-        EpisodeConfig(task="near_target", scene_split="train", sound_split="heard", count=3, near_radius=2.0,
-                      **SMALL),
-        EpisodeConfig(task="far_target", scene_split="train", sound_split="heard", count=2, far_min_distance=3.0,
-                      **SMALL)), sound_variants=2, steps=4, env=fast_env)
+def small_stream(fast_env) -> StreamConfig:
+    """Small train scenes, heard sounds, near and far starts, batches of 4 single observations, augmented."""
+    return StreamConfig(episodes=(
+        EpisodeConfig(task="near_target", scene_split="train", sound_split="heard", near_radius=2.0, **SMALL),
+        EpisodeConfig(task="far_target", scene_split="train", sound_split="heard", far_min_distance=3.0, **SMALL)),
+        batch_size=4, steps=1, max_walk=3, gain_db=3.0, noise_levels=(0.05, 0.1), noise_fraction=0.5, env=fast_env)
 
 
 @pytest.fixture(scope="session")
-def small_val_data(small_train_data) -> SeparatorDataConfig:
-    episodes = tuple(dataclasses.replace(e, scene_split="val", sound_split="unheard") for e in small_train_data.episodes)
-    return dataclasses.replace(small_train_data, episodes=episodes, sound_variants=1)
+def small_sequences(small_stream) -> StreamConfig:
+    """The same draws as sequences of 3 observations."""
+    return dataclasses.replace(small_stream, batch_size=3, steps=3)
 
 
 @pytest.fixture(scope="session")
-def small_train_set(small_train_data, folder_library, training_data_dir) -> SeparatorDataset:
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("M2H_DATA_DIR", str(training_data_dir))
-        return separator_dataset(small_train_data, folder_library, n_envs=4, progress=False)
+def small_val_stream(small_stream) -> StreamConfig:
+    """Small val scenes, unheard sounds, sequences of 3 observations, no augmentation."""
+    episodes = tuple(dataclasses.replace(e, scene_split="val", sound_split="unheard") for e in small_stream.episodes)
+    return dataclasses.replace(small_stream, episodes=episodes, batch_size=3, steps=3, gain_db=0.0,
+                               noise_levels=(), noise_fraction=0.0)
 
 
 @pytest.fixture(scope="session")

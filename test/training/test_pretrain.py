@@ -1,59 +1,119 @@
-"""Separator pretraining on a tiny simulator dataset: losses fall, the checkpoint rebuilds itself,
-the refiner stage respects episode boundaries, and the passive evaluation gives finite numbers."""
+"""Separator pretraining on tiny streams: losses fall, the checkpoint rebuilds itself, a resumed run
+equals an uninterrupted one, the refiner respects episode boundaries, and passive evaluation scores
+floor, separator and oracle with the shared scoring."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 import torch
 
-from m2h_ros.core.audio.metrics import delayed, si_sdr
+from m2h_ros.core.audio.metrics import si_sdr
+from m2h_ros.core.results import METRICS
 from m2h_ros.core.world.env import BatchEnv
-from m2h_ros.core.world.episodes import episodes_for
-from m2h_ros.errors import ConfigError
+from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
+from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.separator import Separator, SeparatorConfig
-from m2h_ros.training.passive_eval import VARIANTS, evaluate_passive, summarize
-from m2h_ros.training.pretrain_separator import PretrainConfig, _refine_sequences, pretrain
+from m2h_ros.training.passive_eval import ESTIMATES, evaluate_passive, gap_closed, summarize
+from m2h_ros.training.pretrain_separator import PretrainConfig, _refine_sequences, pretrain, state_path
 
 TINY = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)
 
 
 @pytest.fixture(scope="module")
-def trained(small_train_data, small_val_data, small_train_set, folder_library, tmp_path_factory):
-    config = PretrainConfig(model=TINY, batch_size=8, epochs=4, refiner_batch_size=4, refiner_epochs=3, threads=1,
-                            lr=3e-3, train_data=small_train_data, val_data=small_val_data)
+def config(small_stream, small_sequences, small_val_stream):
+    return PretrainConfig(model=TINY, lr=3e-3, epochs=3, batches_per_epoch=8, refiner_epochs=2,
+                          refiner_batches_per_epoch=2, train_data=small_stream, refiner_data=small_sequences,
+                          val_data=small_val_stream, val_batches=2, threads=1, workers=0)
+
+
+@pytest.fixture(scope="module")
+def trained(config, folder_library, tmp_path_factory, training_data_dir):
     out = tmp_path_factory.mktemp("ckpt") / "sep.pt"
     with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("M2H_DATA_DIR", str(small_train_set.path.parents[2]))
-        return pretrain(config, folder_library, out=out, progress=False, n_envs=4, command="test")
+        patch.setenv("M2H_DATA_DIR", str(training_data_dir))
+        return pretrain(config, folder_library, out=out, progress=False, command="test", on_epoch=lambda *_: None)
 
 
-def test_training_lowers_the_loss(trained):
-    stage1 = trained.metadata["history"]["stage1"]
-    assert len(stage1) == 4 and len(trained.metadata["history"]["stage2"]) == 3
-    assert stage1[-1]["train_binaural_l1"] < stage1[0]["train_binaural_l1"]
-    assert stage1[-1]["train_monaural_l1"] < stage1[0]["train_monaural_l1"]
+def test_training_lowers_the_loss_and_keeps_the_best_epoch(trained):
+    stage1, stage2 = trained.metadata["history"]["stage1"], trained.metadata["history"]["stage2"]
+    assert [h["epoch"] for h in stage1] == [1, 2, 3] and len(stage2) == 2
+    # Every batch is new data: the fixed validation set shows the progress.
+    assert stage1[-1]["val_binaural_l1"] < stage1[0]["val_binaural_l1"]
+    assert stage1[-1]["val_monaural_l1"] < stage1[0]["val_monaural_l1"]
     final = trained.metadata["final"]
     assert all(np.isfinite(v) for v in final.values())
-    assert final["val_monaural_l1"] == min(h["val_monaural_l1"] for h in stage1)  # best epoch kept
+    assert final["val_monaural_l1"] == min(h["val_monaural_l1"] for h in stage1)
+    assert final["val_refined_l1"] == min(h["val_refined_l1"] for h in stage2)
+    # The references of f^B do not depend on the weights; the ideal mask bounds the identity mask.
+    assert len({h["val_identity_mask_binaural_l1"] for h in stage1}) == 1
+    assert final["val_ideal_mask_binaural_l1"] < final["val_identity_mask_binaural_l1"]
+    assert trained.metadata["observations_seen"] == {"stage1": 3 * 8 * 4, "stage2": 2 * 2 * 3 * 3}
 
 
-def test_checkpoint_rebuilds_with_classes_and_metadata(trained, small_train_set):
+def test_checkpoint_rebuilds_with_classes_and_metadata(trained):
     loaded = load_separator(trained.checkpoint, expected_config=TINY, expected_classes=("speech", "music"))
     meta = loaded.metadata
-    assert meta["mixture_power"] == pytest.approx(float(np.mean(small_train_set.mixture_power)))
-    assert meta["data"]["train"]["observations"] == 40 and meta["data"]["val"]["sequences"] == 5
-    assert meta["machine"]["cpu_count"] >= 1 and meta["command"] == "test"
+    assert meta["mixture_power"] > 0 and meta["command"] == "test" and meta["resumed_from"] is None
+    assert meta["validation"] == {"sequences": 6, "steps": 3} and meta["machine"]["cpu_count"] >= 1
     side = json.loads(trained.checkpoint.with_suffix(".json").read_text())
     assert side["final"] == meta["final"]
-    png = trained.checkpoint.with_name("sep_loss.png")
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert trained.checkpoint.with_name("sep_loss.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not state_path(trained.checkpoint).exists()  # removed once the run completed
     mixture = torch.rand(3, 32, 32, 32) * 20
     classes = torch.tensor([0, 1, 0])
     with torch.no_grad():
         expected = trained.separator.eval()(mixture, classes).refined
         np.testing.assert_allclose(loaded.separator(mixture, classes).refined, expected, rtol=1e-5, atol=1e-5)
+
+
+class Interrupt(Exception):
+    pass
+
+
+@pytest.mark.parametrize("stop_at", [("stage1", 1), ("stage2", 1)])
+def test_a_resumed_run_equals_an_uninterrupted_one(stop_at, trained, config, folder_library, tmp_path):
+    out = tmp_path / "sep.pt"
+
+    def interrupt(stage, record):
+        if (stage, record["epoch"]) == stop_at:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        pretrain(config, folder_library, out=out, progress=False, on_epoch=interrupt)
+    assert state_path(out).exists() and not out.exists()
+    resumed = pretrain(dataclasses.replace(config, workers=2), folder_library, out=out, progress=False,
+                       on_epoch=lambda *_: None)
+    assert resumed.metadata["resumed_from"] == {"stage": stop_at[0], "epoch": stop_at[1]}
+    for stage in ("stage1", "stage2"):
+        got, expected = resumed.metadata["history"][stage], trained.metadata["history"][stage]
+        assert len(got) == len(expected)
+        for a, b in zip(got, expected):
+            assert a.keys() == b.keys()
+            np.testing.assert_allclose([a[k] for k in a], [b[k] for k in a], rtol=1e-5, err_msg=stage)
+
+
+def test_a_state_of_another_configuration_is_refused(config, folder_library, tmp_path):
+    out = tmp_path / "sep.pt"
+    with pytest.raises(Interrupt):
+        pretrain(config, folder_library, out=out, progress=False,
+                 on_epoch=lambda *_: (_ for _ in ()).throw(Interrupt))
+    with pytest.raises(CheckpointError, match="another configuration"):
+        pretrain(dataclasses.replace(config, lr=1e-3), folder_library, out=out, progress=False)
+    # Other epoch counts are the same run, stopped elsewhere: a stage-1 state continues with them.
+    cut = pretrain(dataclasses.replace(config, epochs=1, refiner_epochs=1), folder_library, out=out,
+                   progress=False, on_epoch=lambda *_: None)
+    assert cut.metadata["resumed_from"] == {"stage": "stage1", "epoch": 1}
+    assert cut.metadata["epochs_run"] == {"stage1": 1, "stage2": 1}
+    # --fresh ignores a state (and then replaces it).
+    with pytest.raises(Interrupt):
+        pretrain(config, folder_library, out=out, progress=False,
+                 on_epoch=lambda *_: (_ for _ in ()).throw(Interrupt))
+    result = pretrain(dataclasses.replace(config, epochs=1, refiner_epochs=1), folder_library, out=out,
+                      progress=False, fresh=True, on_epoch=lambda *_: None)
+    assert result.metadata["resumed_from"] is None and not state_path(out).exists()
 
 
 def test_refiner_memory_resets_per_sequence(trained):
@@ -73,30 +133,37 @@ def test_refiner_memory_resets_per_sequence(trained):
     assert not torch.allclose(carried[:, 1], together[:, 1])  # step 1 remembers step 0
 
 
-def test_passive_eval_gives_finite_scores_and_the_true_floor(trained, small_val_data, folder_library,
-                                                             training_data_dir):
+def test_passive_eval_scores_floor_separator_and_oracle(trained, small_val_stream, folder_library):
     loaded = load_separator(trained.checkpoint)
-    episodes = episodes_for(small_val_data.episodes[0], folder_library)[:3]
-    scores = evaluate_passive(loaded, episodes, folder_library, env_config=small_val_data.env, n_envs=2,
+    episode_config = dataclasses.replace(small_val_stream.episodes[0], count=6)
+    assert isinstance(episode_config, EpisodeConfig)
+    episodes = episodes_for(episode_config, folder_library)
+    scores = evaluate_passive(loaded, episodes, folder_library, env_config=small_val_stream.env, n_envs=4,
                               progress=False)
-    for variant in VARIANTS:
-        for values in scores[variant].values():
-            assert values.shape == (3,) and np.isfinite(values).all()
-    env = BatchEnv(episodes, folder_library, n_envs=3, config=small_val_data.env, autoreset=False)
+    for estimate in ESTIMATES:
+        for metric in METRICS:
+            assert scores[estimate][metric].shape == (6,) and np.isfinite(scores[estimate][metric]).all()
+    env = BatchEnv(episodes, folder_library, n_envs=6, config=small_val_stream.env, autoreset=False)
     obs, info = env.reset(episodes=episodes)
-    # mixture-phase variants are scored against the dry clip delayed by the direct path
-    aligned = delayed(info["target_monaural"], np.rint(info["target_delay"]).astype(int))
-    floor = si_sdr(obs["audio"].mean(axis=1), aligned)
-    np.testing.assert_allclose(scores["mixture"]["si_sdr"], floor, atol=1e-6)
+    # The floor of the deployable variant: the ear-mean mixture against the target as heard.
+    floor = si_sdr(obs["audio"].mean(axis=1), info["target_binaural"].mean(axis=1))
+    np.testing.assert_allclose(scores["mixture"]["si_sdr_mixture_phase"], floor, atol=1e-3)
     summary = summarize(scores)
-    assert summary["mixture"]["episodes"] == 3 and summary["mixture"]["si_sdr_sem"] >= 0
+    assert summary["oracle"]["si_sdr"] > summary["mixture"]["si_sdr"] + 1.0
+    assert summary["oracle"]["stft_distance"] < summary["mixture"]["stft_distance"]
+    gap = gap_closed(summary, "si_sdr")
+    expected = (summary["separator"]["si_sdr"] - summary["mixture"]["si_sdr"]) / (
+        summary["oracle"]["si_sdr"] - summary["mixture"]["si_sdr"])
+    assert gap == pytest.approx(expected) and summary["mixture"]["episodes"] == 6
 
 
-def test_config_validation():
-    with pytest.raises(ConfigError, match="batch_size"):
-        PretrainConfig(batch_size=1)
+def test_config_validation(small_stream):
     with pytest.raises(ConfigError, match="lr"):
         PretrainConfig(lr=0.0)
     with pytest.raises(ConfigError, match="model"):
         PretrainConfig(model="compact")
+    with pytest.raises(ConfigError, match="batches_per_epoch"):
+        PretrainConfig(batches_per_epoch=0)
+    with pytest.raises(ConfigError, match="single observations"):
+        PretrainConfig(train_data=dataclasses.replace(small_stream, steps=2))
     assert isinstance(Separator(PretrainConfig().model), Separator)

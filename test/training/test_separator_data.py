@@ -1,89 +1,167 @@
-"""Separator datasets recorded from the simulator: layout, content, determinism, caching."""
+"""Separator training data drawn on the fly: layout, content, augmentation, determinism over workers."""
 
 import dataclasses
 
 import numpy as np
 import pytest
+import torch
+from torch.utils.data import DataLoader
 
-from m2h_ros.core.audio.stft import stft
+from m2h_ros.core.audio.stft import stft, to_slices
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
-from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, EpisodeConfig, episodes_for
+from m2h_ros.core.world.env import BatchEnv
 from m2h_ros.errors import ConfigError
-from m2h_ros.training import separator_data
 from m2h_ros.training.separator_data import (
-    SeparatorDataConfig,
+    BatchSource,
+    SeparatorStream,
+    StreamConfig,
+    build_banks,
+    fixed_set,
     policy_actions,
-    separator_dataset,
-    variant_episodes,
+    source_subset,
+    stream_scenes,
+    walk,
 )
 
 
-@pytest.fixture
-def dataset(small_train_set):
-    return small_train_set
+def sliced(array) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(to_slices(np.asarray(array, np.float32), n_slices=16)))
 
 
-def test_layout_and_dtypes(dataset, small_train_data):
-    s, t = small_train_data.n_sequences, small_train_data.steps
-    assert (s, t) == (10, 4) and dataset.n_samples == 40
-    assert dataset.mixture_logmag.shape == (s, t, 2, 512, 32) and dataset.mixture_logmag.dtype == np.float16
-    assert dataset.target_binaural.shape == (s, t, 2, 512, 32) and dataset.target_binaural.dtype == np.float16
-    assert dataset.target_monaural.shape == (s, 512, 32) and dataset.target_monaural.dtype == np.float16
-    assert set(dataset.class_index.tolist()) <= {0, 1} and (dataset.n_sources == 2).all()
-    for name in ("mixture_logmag", "target_binaural", "target_monaural", "mixture_power"):
-        values = np.asarray(getattr(dataset, name), dtype=np.float32)
-        assert np.isfinite(values).all() and (values >= 0).all(), name
-    assert (dataset.mixture_power > 0).all()
-    assert dataset.meta["n_sequences"] == s and dataset.meta["record_seconds"] >= 0
+@pytest.fixture(scope="module")
+def plain(small_sequences):
+    """The stream without augmentation: the same episodes, walks and actions."""
+    return dataclasses.replace(small_sequences, gain_db=0.0, noise_levels=(), noise_fraction=0.0)
 
 
-def test_content_matches_the_episodes(dataset, small_train_data, folder_library):
-    episodes = [e for c in small_train_data.episodes for e in episodes_for(c, folder_library)]
-    sequences = variant_episodes(episodes, folder_library, variants=2, seed=small_train_data.seed)
-    for row in (0, 1, 7):
-        episode = sequences[row]
-        clip = folder_library.clip(episode.source_clips[0])
-        expected = np.abs(stft(clip))
-        np.testing.assert_allclose(dataset.target_monaural[row].astype(np.float32), expected,
-                                   rtol=2e-3, atol=2e-3 * expected.max())
-        assert dataset.class_index[row] == TARGET_CATEGORIES.index(episode.target_category)
-    # A variant keeps the geometry and the categories, with its own clips and noise seed.
-    base, variant = sequences[0], sequences[1]
-    assert variant.source_nodes == base.source_nodes and variant.start_node == base.start_node
-    assert variant.source_categories == base.source_categories and variant.seed != base.seed
+def test_layout(small_stream, small_sequences, folder_library):
+    batch = BatchSource(small_stream, folder_library).batch(0)
+    assert batch.index == 0
+    assert batch.mixture.shape == batch.share.shape == (4, 1, 32, 32, 32) and batch.mixture.dtype == torch.float32
+    assert batch.monaural.shape == (4, 16, 32, 32) and batch.class_index.shape == (4,)
+    assert set(batch.class_index.tolist()) <= set(range(len(TARGET_CATEGORIES)))
+    assert (batch.mixture >= 0).all() and (batch.share >= 0).all() and (batch.power > 0).all()
+    sequences = BatchSource(small_sequences, folder_library).batch(0)
+    mixture, share, monaural, classes = sequences.observations()
+    assert sequences.mixture.shape[:2] == (3, 3) and mixture.shape == (9, 32, 32, 32)
+    torch.testing.assert_close(monaural[3:6], sequences.monaural[1:2].expand(3, -1, -1, -1))
+    assert classes.tolist() == np.repeat(sequences.class_index.numpy(), 3).tolist()
     # The mixture changes as the agent moves and turns.
-    assert not np.array_equal(dataset.mixture_logmag[0, 0], dataset.mixture_logmag[0, -1])
+    assert not torch.equal(sequences.mixture[0, 0], sequences.mixture[0, -1])
 
 
-def test_rebuild_is_deterministic_and_cache_is_reused(dataset, small_train_data, folder_library, tmp_path,
-                                                       monkeypatch):
-    again = separator_dataset(small_train_data, folder_library, progress=False)  # same data dir: cached
-    assert again.path == dataset.path
-    monkeypatch.setenv("M2H_DATA_DIR", str(tmp_path))  # fresh dir: recorded again, other batching
-    rebuilt = separator_dataset(small_train_data, folder_library, n_envs=3, rir_workers=1, progress=False)
-    assert rebuilt.path != dataset.path
-    for name in ("mixture_logmag", "target_binaural", "target_monaural", "class_index", "mixture_power"):
-        np.testing.assert_array_equal(getattr(rebuilt, name), getattr(dataset, name), err_msg=name)
+def test_unaugmented_batch_is_what_the_environment_renders(plain, folder_library):
+    source = BatchSource(plain, folder_library)
+    batch, plan = source.batch(2), source.plan(2)
+    env = BatchEnv(plan.episodes, folder_library, n_envs=plain.batch_size, config=plain.env, autoreset=False)
+    obs, info = env.reset(episodes=plan.episodes)
+    for step in range(plain.steps):
+        if step:
+            obs, _, _, _, info = env.step(plan.actions[:, step - 1])
+        torch.testing.assert_close(batch.mixture[:, step], sliced(np.abs(stft(obs["audio"]))), rtol=1e-4, atol=1e-3)
+        torch.testing.assert_close(batch.share[:, step], sliced(np.abs(stft(info["target_binaural"] / 2))),
+                                   rtol=1e-4, atol=1e-3)
+    torch.testing.assert_close(batch.monaural, sliced(np.abs(stft(info["target_monaural"]))[:, None]),
+                               rtol=1e-4, atol=1e-3)
+    assert batch.class_index.tolist() == [TARGET_CATEGORIES.index(e.target_category) for e in plan.episodes]
 
 
-def test_policy_is_seeded_and_never_stops():
-    a = policy_actions(0, 3, 50)
-    np.testing.assert_array_equal(a, policy_actions(0, 3, 50))
-    assert not np.array_equal(a, policy_actions(0, 4, 50))
-    assert set(a.tolist()) == {MOVE_FORWARD, TURN_LEFT, TURN_RIGHT}
+def test_walk_follows_the_environment(plain, folder_library):
+    episode = BatchSource(plain, folder_library).plan(0).episodes[0]
+    actions = policy_actions(np.random.default_rng(5), 12)
+    env = BatchEnv([episode], folder_library, n_envs=1, config=plain.env, autoreset=False)
+    obs, _ = env.reset(episodes=[episode])
+    for action in actions:
+        obs, *_ = env.step(np.array([action]))
+    assert walk(episode.scene().grid, episode.start_node, episode.start_heading, actions) == \
+        (int(obs["node"][0]), int(obs["heading"][0]))
 
 
-def test_config_validation_and_key(small_train_data, folder_library):
-    with pytest.raises(ConfigError, match="sound_variants"):
-        dataclasses.replace(small_train_data, sound_variants=0)
+def test_gains_scale_the_target_and_its_share(small_sequences, plain, folder_library):
+    gained_config = dataclasses.replace(plain, gain_db=small_sequences.gain_db)
+    gained, base = BatchSource(gained_config, folder_library).batch(1), BatchSource(plain, folder_library).batch(1)
+    ratio = (gained.monaural.sum(dim=(1, 2, 3)) / base.monaural.sum(dim=(1, 2, 3))).numpy()
+    db = 20 * np.log10(ratio)
+    assert (np.abs(db) <= gained_config.gain_db + 1e-3).all() and np.ptp(db) > 0.1
+    share_ratio = (gained.share.sum(dim=(1, 2, 3, 4)) / base.share.sum(dim=(1, 2, 3, 4))).numpy()
+    np.testing.assert_allclose(share_ratio, ratio, rtol=1e-4)
+    assert not torch.allclose(gained.mixture, base.mixture)
+
+
+def test_noise_has_the_drawn_level(plain, folder_library):
+    noisy_config = dataclasses.replace(plain, noise_levels=(0.3,), noise_fraction=1.0)
+    noisy, clean = BatchSource(noisy_config, folder_library).batch(0), BatchSource(plain, folder_library).batch(0)
+    # White noise of std 0.3 x the clean RMS adds 9% to the mixture's power.
+    np.testing.assert_allclose((noisy.power / clean.power).numpy(), 1.09, atol=0.01)
+    torch.testing.assert_close(noisy.share, clean.share)  # the target is not noisy
+    half = dataclasses.replace(noisy_config, noise_fraction=0.5)
+    ratios = np.concatenate([(BatchSource(half, folder_library).batch(i).power
+                              / BatchSource(plain, folder_library).batch(i).power).numpy().ravel() for i in range(4)])
+    assert 0 < np.sum(ratios > 1.05) < len(ratios) and np.all((np.abs(ratios - 1) < 1e-5) | (ratios > 1.05))
+
+
+def test_batches_are_a_function_of_their_index_for_any_worker_count(small_stream, folder_library):
+    source = BatchSource(small_stream, folder_library)
+    alone = [source.batch(i) for i in range(2, 6)]
+    again = BatchSource(small_stream, folder_library).batch(4)
+    torch.testing.assert_close(again.mixture, alone[2].mixture, rtol=0, atol=0)
+    for workers in (0, 2):
+        loaded = list(DataLoader(SeparatorStream(BatchSource(small_stream, folder_library), 2, 6), batch_size=None,
+                                 num_workers=workers))
+        assert [b.index for b in loaded] == [2, 3, 4, 5]
+        for got, expected in zip(loaded, alone):
+            for name in ("mixture", "share", "monaural", "class_index", "power"):
+                torch.testing.assert_close(getattr(got, name), getattr(expected, name), rtol=0, atol=0)
+    assert not torch.equal(alone[0].mixture, alone[1].mixture)
+    other_seed = BatchSource(dataclasses.replace(small_stream, seed=1), folder_library).batch(2)
+    assert not torch.equal(other_seed.mixture, alone[0].mixture)
+    assert [b.index for b in fixed_set(source, 2, progress=False)] == [0, 1]
+
+
+def test_scenes_limit_the_draws(small_stream, folder_library):
+    first_two = dataclasses.replace(small_stream, scenes=2)
+    indices = {e.scene_index for i in range(6) for e in BatchSource(first_two, folder_library).plan(i).episodes}
+    assert indices == {0, 1}
+    with pytest.raises(ConfigError, match="scenes"):
+        BatchSource(dataclasses.replace(small_stream, scenes=99), folder_library)
+
+
+def test_source_subsets_limit_placement_and_the_banks_to_build(small_stream, folder_library, tmp_path):
+    limited = dataclasses.replace(small_stream, source_nodes=4, scenes=3)
+    source = BatchSource(limited, folder_library)
+    for i in range(4):
+        for episode in source.plan(i).episodes:
+            subset = source_subset(episode.scene(), 4)
+            assert set(episode.source_nodes) <= set(subset.tolist())
+    scene = stream_scenes(limited, limited.episodes[0])[0]
+    np.testing.assert_array_equal(source_subset(scene, 4), source_subset(scene, 4))  # same for every stream
+    assert source_subset(scene, scene.grid.n_nodes) is None
+    assert build_banks(limited, cache_dir=tmp_path, workers=1, progress=False) == 3 * 4
+    assert build_banks(limited, cache_dir=tmp_path, workers=1, progress=False) == 0  # all cached
+
+
+def test_config_validation(small_stream):
+    with pytest.raises(ConfigError, match="batch_size"):
+        dataclasses.replace(small_stream, batch_size=1)
     with pytest.raises(ConfigError, match="steps"):
-        dataclasses.replace(small_train_data, steps=30)  # near-target episodes have 20 steps
+        dataclasses.replace(small_stream, steps=30)  # near-target episodes have 20 steps
     with pytest.raises(ConfigError, match="episodes"):
-        SeparatorDataConfig(episodes=())
-    with pytest.raises(ConfigError, match="camera"):
-        dataclasses.replace(small_train_data, env=dataclasses.replace(small_train_data.env, camera=True))
-    other = dataclasses.replace(small_train_data, seed=1)
-    assert other.key(folder_library) != small_train_data.key(folder_library)
-    assert SeparatorDataConfig.training().n_sequences == (96 + 48) * 4
-    assert isinstance(SeparatorDataConfig.validation().episodes[0], EpisodeConfig)
-    assert separator_data.DATA_VERSION >= 1
+        StreamConfig(episodes=())
+    with pytest.raises(ConfigError, match="noise_fraction"):
+        dataclasses.replace(small_stream, noise_levels=(), noise_fraction=0.5)
+    with pytest.raises(ConfigError, match="noise_levels"):
+        dataclasses.replace(small_stream, noise_levels=(-0.1,))
+    with pytest.raises(ConfigError, match="scenes"):
+        dataclasses.replace(small_stream, scenes=0)
+    with pytest.raises(ConfigError, match="source_nodes"):
+        dataclasses.replace(small_stream, source_nodes=0)
+    with pytest.raises(ConfigError, match="gain_db"):
+        dataclasses.replace(small_stream, gain_db=-1.0)
+    with pytest.raises(ConfigError, match="mic_noise"):
+        dataclasses.replace(small_stream, env=dataclasses.replace(small_stream.env, mic_noise=0.1))
+    with pytest.raises(ConfigError, match="n_distractors"):
+        dataclasses.replace(small_stream, episodes=(small_stream.episodes[0],
+                                                    dataclasses.replace(small_stream.episodes[1], n_distractors=2)))
+    training, validation = StreamConfig.training(), StreamConfig.validation()
+    assert training.gain_db > 0 and training.noise_fraction > 0 and training.episodes[0].scene_split == "train"
+    assert validation.gain_db == 0 and validation.noise_fraction == 0 and validation.episodes[0].sound_split == "unheard"

@@ -122,14 +122,16 @@ def _categories(rng: np.random.Generator, config: EpisodeConfig) -> tuple[str, .
     return (target, *others)
 
 
-def _place(rng: np.random.Generator, scene: Scene, config: EpisodeConfig) -> tuple[list[int], int] | None:
-    """Source nodes (target first) at least min_source_distance apart, and a start node."""
+def _place(rng: np.random.Generator, scene: Scene, config: EpisodeConfig,
+           candidates: np.ndarray | None = None) -> tuple[list[int], int] | None:
+    """Source nodes (target first) at least min_source_distance apart, and a start node; sources
+    only on ``candidates`` when given (any node otherwise)."""
     geodesic = scene.grid.geodesic
-    n = scene.grid.n_nodes
+    allowed = np.arange(scene.grid.n_nodes) if candidates is None else np.asarray(candidates)
     for _ in range(_PLACEMENT_TRIES):
-        sources = [int(rng.integers(n))]
+        sources = [int(allowed[rng.integers(len(allowed))])]
         for _ in range(config.n_distractors):
-            free = np.flatnonzero((geodesic[sources] >= config.min_source_distance).all(axis=0))
+            free = allowed[(geodesic[sources][:, allowed] >= config.min_source_distance).all(axis=0)]
             if free.size == 0:
                 break
             sources.append(int(rng.choice(free)))
@@ -152,26 +154,31 @@ def generate_episodes(config: EpisodeConfig, library: SoundLibrary, *, progress:
     scenes = load_split(config.scene_split, preset=config.scene_preset)
     rng = np.random.default_rng([config.seed, EPISODES_VERSION])
     prefix = f"{config.scene_split}/{config.task}/{config.sound_split}/{config.scenario}"
-    episodes = []
-    for k in tqdm(range(config.count), desc="episodes", disable=not progress):
-        index = k % len(scenes)
-        scene = scenes[index]
-        placed = _place(rng, scene, config)
-        if placed is None:
-            raise EpisodeError(
-                f"scene {scene.scene_id} cannot hold {config.n_distractors + 1} sources "
-                f"{config.min_source_distance} m apart with a {config.task} start; lower "
-                f"min_source_distance or use another split")
-        sources, start = placed
-        categories = _categories(rng, config)
-        clips = tuple(library.sample(rng, category=c, split=config.sound_split)[1] for c in categories)
-        episodes.append(Episode(
-            episode_id=f"{prefix}/{k:06d}", scene_id=scene.scene_id, scene_split=config.scene_split,
-            scene_index=index, scene_preset=config.scene_preset, task=config.task,
-            sound_split=config.sound_split, scenario=config.scenario, max_steps=config.steps,
-            start_node=start, start_heading=int(rng.integers(4)), source_nodes=tuple(sources),
-            source_categories=categories, source_clips=clips, seed=int(rng.integers(2**31))))
-    return episodes
+    return [draw_episode(rng, config, k % len(scenes), library, episode_id=f"{prefix}/{k:06d}")
+            for k in tqdm(range(config.count), desc="episodes", disable=not progress)]
+
+
+def draw_episode(rng: np.random.Generator, config: EpisodeConfig, scene_index: int, library: SoundLibrary, *,
+                 episode_id: str, source_candidates: np.ndarray | None = None) -> Episode:
+    """One episode of ``config`` in scene ``scene_index`` of its split (``config.count`` is not used):
+    source placement (on ``source_candidates`` only, when given), start pose, categories, clips and
+    noise seed, all drawn from ``rng``."""
+    scene = scene_at(config.scene_split, config.scene_preset, scene_index)
+    placed = _place(rng, scene, config, source_candidates)
+    if placed is None:
+        raise EpisodeError(
+            f"scene {scene.scene_id} cannot hold {config.n_distractors + 1} sources "
+            f"{config.min_source_distance} m apart with a {config.task} start; lower "
+            f"min_source_distance or use another split")
+    sources, start = placed
+    categories = _categories(rng, config)
+    clips = tuple(library.sample(rng, category=c, split=config.sound_split)[1] for c in categories)
+    return Episode(
+        episode_id=episode_id, scene_id=scene.scene_id, scene_split=config.scene_split,
+        scene_index=scene_index, scene_preset=config.scene_preset, task=config.task,
+        sound_split=config.sound_split, scenario=config.scenario, max_steps=config.steps,
+        start_node=start, start_heading=int(rng.integers(4)), source_nodes=tuple(sources),
+        source_categories=categories, source_clips=clips, seed=int(rng.integers(2**31)))
 
 
 def save_episodes(path: str | Path, episodes: list[Episode], *, config: EpisodeConfig,
