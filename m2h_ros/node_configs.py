@@ -68,7 +68,7 @@ class SeparatorNodeConfig(Config):
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
-    policy: str = setting("proximity_prior", "which controller chooses the actions (default: the best "
+    policy: str = setting("doa", "which controller chooses the actions (default: the best "
                           "training-free baseline in docs/results/baselines_near_target until learned "
                           "policies are shipped)", choices=CONTROLLER_NAMES)
     checkpoint: str = setting("", "policy checkpoint for learned controllers; empty: shipped default")
