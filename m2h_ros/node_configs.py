@@ -78,7 +78,7 @@ class ControllerConfig(Config):
 @dataclass(frozen=True)
 class EvaluatorConfig(Config):
     output_dir: str = setting("", "directory for results.md/.csv/.json and the SI-SDR plot, "
-                              "rewritten after every episode; empty: none")
+                              "rewritten after the first episode, every 10 s and at the end; empty: none")
 @dataclass(frozen=True)
 class RecorderConfig(Config):
     output: str = setting("", "bag directory to create; empty: runs/<date-time> under the current "

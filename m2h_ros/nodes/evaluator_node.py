@@ -8,6 +8,7 @@ the mixture's phase (deployable), STFT distance, and SR / SPL for far-target epi
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from m2h_msgs.msg import (AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, Spectrogram,
@@ -26,6 +27,7 @@ from m2h_ros.ros.spin import run_node
 from m2h_ros.ros.sync import EpisodeGate, StepAssembler
 
 N, F, T = DEFAULT_STFT.clip_samples, DEFAULT_STFT.n_freq, DEFAULT_STFT.n_frames
+WRITE_PERIOD_S = 10.0
 HELD = -1  # in results: no command arrived for the step in time (free-running mode held the robot)
 
 
@@ -59,6 +61,7 @@ class EvaluatorNode(Node):
         self.controllers: dict[str, str] = {}
         self.results: list[EpisodeResult] = []
         self.output = Path(self.config.output_dir) if self.config.output_dir else None
+        self.written_at = -WRITE_PERIOD_S
         self.get_logger().info(f"ready: results to {self.output or '(nowhere: output_dir is empty)'}")
 
     def on_step(self, key: tuple[str, int], parts: dict, info: EpisodeInfo) -> None:
@@ -97,8 +100,11 @@ class EvaluatorNode(Node):
         self.get_logger().info(f"{episode_id}: SI-SDR {result.final('si_sdr'):.2f} dB (GT phase), "
                                f"{result.final('si_sdr_mixture_phase'):.2f} dB (mixture phase) after "
                                f"{result.steps} steps" + (f", {held} held" if held else ""))
-        if self.output is not None:
+        # Tables of every episode so far: at the first episode, then at most every WRITE_PERIOD_S
+        # (rewriting them per episode would grow quadratically over a long run); all at shutdown.
+        if self.output is not None and time.monotonic() - self.written_at > WRITE_PERIOD_S:
             write_results(self.results, self.output, title="m2h_ros pipeline run", plot=False)
+            self.written_at = time.monotonic()
 
     def destroy_node(self) -> None:
         if self.output is not None and self.results:
