@@ -26,6 +26,7 @@ from scipy import stats
 from m2h_ros.core.world.episodes import STOP
 from m2h_ros.errors import ConfigError
 
+HELD = -1  # an action slot no command filled in time (free-running mode held the robot), AgentPose.last_action too
 METRICS = ("si_sdr", "si_sdr_mixture_phase", "stft_distance")
 METRIC_LABELS = {"si_sdr": "SI-SDR (dB, GT phase)", "si_sdr_mixture_phase": "SI-SDR (dB, mixture phase)",
                  "stft_distance": "STFT distance"}

@@ -20,7 +20,7 @@ import numpy as np
 from m2h_ros import topics
 from m2h_ros.core.audio.scoring import StepTruth, score_magnitude
 from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
-from m2h_ros.core.results import EpisodeResult, EpisodeTracker
+from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
 from m2h_ros.io.bag import BagWriter
 from m2h_ros.io.msg_defs import typestore
@@ -129,7 +129,7 @@ def _episode(run: SyntheticRun, index: int, put, clock, live_score, t) -> Episod
                            sound_split=run.sound_split, scene_id=f"test_{index % 3:02d}",
                            target_class="speech", shortest_path=goal)
     tracker = EpisodeTracker(result, xy)
-    action = -1  # the pose of step 0 follows no action
+    action = HELD  # the pose of step 0 follows no action
     for step in range(last + 1):
         clock[0] += STEP_NS
         stamp = clock[0]

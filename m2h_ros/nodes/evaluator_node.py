@@ -18,7 +18,7 @@ from rclpy.node import Node
 from m2h_ros import topics
 from m2h_ros.core.audio.scoring import score_magnitude
 from m2h_ros.core.audio.stft import DEFAULT_STFT
-from m2h_ros.core.results import EpisodeResult, EpisodeTracker, write_results
+from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker, write_results
 from m2h_ros.node_configs import EvaluatorConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.params import declare_config
@@ -28,7 +28,6 @@ from m2h_ros.ros.sync import EpisodeGate, StepAssembler
 
 N, F, T = DEFAULT_STFT.clip_samples, DEFAULT_STFT.n_freq, DEFAULT_STFT.n_frames
 WRITE_PERIOD_S = 10.0
-HELD = -1  # in results: no command arrived for the step in time (free-running mode held the robot)
 
 
 class EvaluatorNode(Node):

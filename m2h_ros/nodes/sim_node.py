@@ -19,6 +19,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 from m2h_ros import sim_world, topics
+from m2h_ros.core.results import HELD
 from m2h_ros.core.world.env import N_ACTIONS
 from m2h_ros.core.world.player import EpisodePlayer, PlayerStep
 from m2h_ros.errors import PipelineError
@@ -30,7 +31,6 @@ from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
 from m2h_ros.ros.spin import RunFinished, run_node
 
 TICK_S = 0.05  # how often the node checks start-up and timeouts (answers are handled as they come)
-HELD = -1  # AgentPose.last_action of a step no command moved to
 SETTLE_S = 0.5  # after every consumer is seen, let the endpoints match before step 0
 
 
