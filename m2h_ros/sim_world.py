@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from m2h_ros.core.sounds import partial
 from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.camera import CameraConfig
@@ -22,7 +23,8 @@ EPISODE_FILE_SIZE = 1000  # episodes per file (the paper's test-set size)
 
 
 def sound_library(name: str, *, build: bool = False) -> SoundLibrary:
-    """"" = the full built-in library, "small" = its test-size variant, else a folder of
+    """"" = the full built-in library (or, when only that exists, the partial one the main job cuts:
+    core/sounds/partial.py), "small" = its test-size variant, else a folder of
     <category>/<class>/<heard|unheard>/*.wav (SoundLibrary.from_folders). ``build``: build a missing
     built-in library instead of raising CacheError."""
     if name not in ("", "small"):
@@ -31,10 +33,33 @@ def sound_library(name: str, *, build: bool = False) -> SoundLibrary:
     try:
         return SoundLibrary.load(config)
     except CacheError:
+        if name == "" and not build:
+            try:
+                return partial.load_partial(config)
+            except CacheError:
+                pass
         if not build:
             raise
         print("building the sound library (first run only, a few minutes)", flush=True)
         return SoundLibrary.build(config)
+
+
+def prepare_library(config: SimConfig) -> SoundLibrary:
+    """A library holding at least the clips of the sim's episodes: the whole one when it is built (or
+    a small / folder one); else only those clips, cut from the sources with the shipped index (what
+    a fresh machine's first main job does instead of building the whole library)."""
+    if config.sound_library != "":
+        return sound_library(config.sound_library, build=True)
+    library_config = SoundLibraryConfig()
+    try:
+        return SoundLibrary.load(library_config)
+    except CacheError:
+        pass
+    episodes = sim_episodes(config, partial.index_library(library_config))
+    clips = sorted({clip for episode in episodes for clip in episode.source_clips})
+    print(f"cutting the {len(clips)} sound clips of {len(episodes)} episodes (the whole library: "
+          f"scripts/build_sound_library.py)", flush=True)
+    return partial.build_partial(library_config, clips)
 
 
 def episode_config(config: SimConfig) -> EpisodeConfig:

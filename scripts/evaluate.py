@@ -29,7 +29,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: idle OpenMP
 
 import torch  # noqa: E402
 
-from m2h_ros.agents.registry import CONTROLLER_NAMES, controller_class, make_controller  # noqa: E402
+from m2h_ros.agents.registry import CONTROLLER_NAMES, GREEDY, LEARNED, TRAINING_FREE, controller_class, make_controller  # noqa: E402
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differences, paired_table,  # noqa: E402
                                   summarize, write_results)
@@ -66,8 +66,9 @@ def names(text: str, *, allowed: Sequence[str], what: str) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controllers", default=",".join(CONTROLLER_NAMES),
-                        help="comma-separated controller names (default: all; --list shows them)")
+    parser.add_argument("--controllers", default=",".join((*TRAINING_FREE, *LEARNED)),
+                        help="comma-separated controller names (default: all; --list shows them); a learned "
+                             "one with ':greedy' takes the most likely action instead of sampling")
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", default="unheard", help="heard, unheard or both comma-separated")
     parser.add_argument("--count", type=int, default=1000, help="episodes per sound split")
@@ -111,8 +112,9 @@ def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.list:
-        for name in CONTROLLER_NAMES:
+        for name in (*TRAINING_FREE, *LEARNED):
             print(f"{name:<18} {controller_class(name).summary}")
+        print(f"(a learned controller as <name>{GREEDY} takes the most likely action instead of sampling)")
         return 0
     command = shlex.join(["python", "scripts/evaluate.py", *(sys.argv[1:] if argv is None else argv)])
     started = time.perf_counter()

@@ -98,7 +98,7 @@ def prepare_data(config) -> None:
     """What the sim needs before it starts: the sound library and the episode file."""
     from m2h_ros import sim_world
 
-    sim_world.sim_episodes(config, sim_world.sound_library(config.sound_library, build=True))
+    sim_world.sim_episodes(config, sim_world.prepare_library(config))
 
 
 def launcher() -> list[str]:

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
+from m2h_ros.agents.registry import GREEDY
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
 from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.models.policy import LoadedPolicy, load_policy, policy_inputs
@@ -95,6 +96,8 @@ class LearnedController(Controller):
         if not isinstance(greedy, bool):
             raise ConfigError(f"greedy={greedy!r} must be a bool")
         self.greedy = greedy
+        if greedy:
+            self.name = type(self).name + GREEDY  # the registry's spec: results say which mode ran
         self.target_class = np.zeros(self.n_slots, np.int64)
         self.drivers = self._drivers(checkpoint)
         self.uses_camera = any(d.loaded.config.camera for d in self.drivers)
@@ -165,21 +168,28 @@ class Move2Hear(LearnedController):
         if isinstance(switch_step, bool) or not isinstance(switch_step, (int, np.integer)) or switch_step < 0:
             raise ConfigError(f"switch_step={switch_step!r} must be a non-negative int")
         self.switch_step = int(switch_step)
+        self.far = np.zeros(n_slots, bool)
         super().__init__(n_slots, seed=seed, checkpoint=checkpoint, greedy=greedy)
-        self.far = np.zeros(self.n_slots, bool)
 
     def _drivers(self, checkpoint: str) -> list[PolicyDriver]:
-        folder = Path(checkpoint) if checkpoint else DEFAULT_POLICY_DIR
-        if checkpoint and not folder.is_dir():
+        self.folder = Path(checkpoint) if checkpoint else DEFAULT_POLICY_DIR
+        if checkpoint and not self.folder.is_dir():
             raise CheckpointError(f"move2hear takes a directory holding policy_quality.pt and policy_navigation.pt, "
-                                  f"got {folder}")
-        self.quality, self.navigation = (PolicyDriver(load_learned(kind, folder / f"policy_{kind}.pt"), self.n_slots)
-                                         for kind in ("quality", "navigation"))
-        return [self.quality, self.navigation]
+                                  f"got {self.folder}")
+        self.quality = self._load("quality")
+        self.navigation: PolicyDriver | None = None  # loaded at the first far-target episode
+        return [self.quality]
+
+    def _load(self, kind: str) -> PolicyDriver:
+        return PolicyDriver(load_learned(kind, self.folder / f"policy_{kind}.pt"), self.n_slots)
 
     def reset(self, slot: int, start: EpisodeStart) -> None:
-        super().reset(slot, start)
         self.far[slot] = start.task == "far_target"
+        if self.far[slot] and self.navigation is None:
+            # Near-target runs need pi^Q only; pi^N (and its file) only once a far-target episode comes.
+            self.navigation = self._load("navigation")
+            self.drivers.append(self.navigation)
+        super().reset(slot, start)
 
     def _act(self, obs: ControllerObservation) -> np.ndarray:
         # pi^Q's GRU state starts fresh when it first acts (reset() marks it): at step 0 near-target,

@@ -25,11 +25,15 @@ LEARNED = {
     "novelty": "m2h_ros.agents.learned:Novelty",
     "av_navigator": "m2h_ros.agents.learned:AVNavigator",
 }
-CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED)
+# "<learned name>:greedy" takes each step's most likely action instead of sampling (the original
+# evaluates sampled actions); results are labelled with the whole spec.
+GREEDY = ":greedy"
+CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED, *(name + GREEDY for name in LEARNED))
 
 
 def controller_class(name: str) -> type[Controller]:
-    target = TRAINING_FREE.get(name) or LEARNED.get(name)
+    base = name.removesuffix(GREEDY)
+    target = TRAINING_FREE.get(name) or (LEARNED.get(base) if base in LEARNED else None)
     if target is None:
         raise ConfigError(f"unknown controller {name!r}; available: {', '.join(CONTROLLER_NAMES)}")
     module, cls = target.split(":")
@@ -43,4 +47,4 @@ def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str =
         if checkpoint:
             raise ConfigError(f"controller {name!r} needs no training; it takes no checkpoint")
         return cls(n_slots, seed=seed)
-    return cls(n_slots, seed=seed, checkpoint=checkpoint)
+    return cls(n_slots, seed=seed, checkpoint=checkpoint, greedy=name.endswith(GREEDY))

@@ -20,13 +20,15 @@ RECORD = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
 
 
+# Only the incompatible-QoS event: rclpy's defaults add an incompatible-type handler to every endpoint,
+# and each handler is one more entity the Python executor puts in its wait set on every wake-up.
 def publisher_events(logger, topic: str) -> PublisherEventCallbacks:
     return PublisherEventCallbacks(incompatible_qos=lambda event: logger.warning(
         f"incompatible QoS on {topic}: a subscriber requests an incompatible "
-        f"{event.last_policy_kind.name}; it will receive nothing"))
+        f"{event.last_policy_kind.name}; it will receive nothing"), use_default_callbacks=False)
 
 
 def subscription_events(logger, topic: str) -> SubscriptionEventCallbacks:
     return SubscriptionEventCallbacks(incompatible_qos=lambda event: logger.warning(
         f"incompatible QoS on {topic}: a publisher offers an incompatible "
-        f"{event.last_policy_kind.name}; nothing will arrive from it"))
+        f"{event.last_policy_kind.name}; nothing will arrive from it"), use_default_callbacks=False)

@@ -1,6 +1,10 @@
 """The one main() of every node: init, spin, shut down cleanly on Ctrl-C / SIGTERM / errors."""
 
+import cProfile
+import os
+import resource
 import sys
+from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -20,7 +24,16 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     code = 0
     try:
         node = node_type()
-        rclpy.spin(node)
+        profile_dir = os.environ.get("M2H_PROFILE_DIR")
+        if profile_dir:  # cProfile of the spin (not the start-up), one <node>.prof per process
+            profiler = cProfile.Profile()
+            try:
+                profiler.runcall(rclpy.spin, node)
+            finally:
+                Path(profile_dir).mkdir(parents=True, exist_ok=True)
+                profiler.dump_stats(Path(profile_dir) / f"{node.get_name()}.prof")
+        else:
+            rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException, RunFinished):
         pass
     except M2HError as exc:
@@ -28,6 +41,10 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
         code = 2
     finally:
         if node is not None:
+            usage = resource.getrusage(resource.RUSAGE_SELF)
+            # Per-process CPU: where a graph run's time goes (scripts/bench/pipeline.py sums it).
+            node.get_logger().info(f"cpu time {usage.ru_utime + usage.ru_stime:.2f} s "
+                                   f"(user {usage.ru_utime:.2f}, system {usage.ru_stime:.2f})")
             node.destroy_node()
         rclpy.try_shutdown()
     sys.exit(code)

@@ -726,6 +726,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,
                         help="passes of f^R's L1 per update (quality)")
+    parser.add_argument("--frozen-refiner", action="store_true",
+                        help="keep the separator's f^R as it is (quality trains it by default)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=PPOConfig.threads)
     parser.add_argument("--checkpoint-every", type=int, default=PPOConfig.checkpoint_every)
@@ -739,7 +741,7 @@ def main(argv: list[str] | None = None) -> int:
     config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
                        env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                        n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
-                       seed=args.seed, threads=args.threads,
+                       train_refiner=False if args.frozen_refiner else None, seed=args.seed, threads=args.threads,
                        checkpoint_every=args.checkpoint_every, device=args.device)
     command = shlex.join(["python", "scripts/train_policy.py", *(sys.argv[1:] if argv is None else argv)])
     result = train(config, SoundLibrary.load(), out_dir=args.out or Path("runs") / f"policy_{args.kind}",

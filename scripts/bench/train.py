@@ -39,12 +39,14 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--no-camera", action="store_true")
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs)
+    parser.add_argument("--frozen-refiner", action="store_true", help="no f^R update (train_policy.py's flag)")
     args = parser.parse_args()
     library = SoundLibrary.load()
     episodes = EpisodeConfig(task=KINDS[args.kind].task, scene_split="test", sound_split="heard", count=200)
     config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes, env=EnvConfig(camera=not args.no_camera),
                        n_envs=args.n_envs, n_steps=args.n_steps, updates=args.updates, threads=args.threads,
-                       refiner_epochs=args.refiner_epochs, checkpoint_every=args.updates + 1)
+                       refiner_epochs=args.refiner_epochs, train_refiner=False if args.frozen_refiner else None,
+                       checkpoint_every=args.updates + 1)
     print(f"PPO {args.kind}, {args.preset} policy, {args.n_envs} slots x {args.n_steps} steps per update, "
           f"camera {'off' if args.no_camera else 'on'}, f^R trained: {config.refiner_trained} "
           f"({args.refiner_epochs} passes), {args.threads} torch threads, {os.cpu_count()} CPUs")

@@ -74,6 +74,14 @@ def test_actions_are_the_networks_with_greedy_and_sampled_modes(tmp_path):
             c.reset(s, start(seed=9 if s == slot else 100 + s))
         return [int(c.act(observation(n_slots, step, seed=step))[slot]) for step in range(12)]
 
+    greedy = make_controller("move2hear_quality:greedy", 3, checkpoint=str(tmp_path / "q.pt"))
+    assert greedy.greedy and greedy.name == "move2hear_quality:greedy"
+    for slot in range(3):
+        greedy.reset(slot, start(seed=slot, target=("speech", "music", "music")[slot]))
+    np.testing.assert_array_equal(greedy.act(obs), actions)
+    with pytest.raises(ConfigError, match="unknown controller 'doa:greedy'"):
+        make_controller("doa:greedy", 1)
+
     in_batch = play(3, 2)
     assert len(set(in_batch)) > 1  # it samples, not always the mode
     alone = make_controller("move2hear_quality", 1, seed=4, checkpoint=str(tmp_path / "q.pt"))
@@ -98,6 +106,15 @@ def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_pat
         make_controller("move2hear", 1, checkpoint=str(tmp_path / "policy_quality.pt"))
     with pytest.raises(ConfigError, match="switch_step"):
         learned.Move2Hear(1, checkpoint=str(tmp_path), switch_step=-1)
+
+
+def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
+    saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
+    controller = make_controller("move2hear", 1, checkpoint=str(tmp_path))  # no policy_navigation.pt
+    controller.reset(0, start("near_target"))
+    assert controller.act(observation(1)).tolist() == [TURN_LEFT]
+    with pytest.raises(CheckpointError, match="navigation policy checkpoint .*policy_navigation.pt not found"):
+        controller.reset(0, start("far_target"))
 
 
 def test_av_navigator_reads_the_mixture_and_the_target_class(tmp_path):

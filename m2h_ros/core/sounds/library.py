@@ -162,9 +162,13 @@ class SoundLibrary:
     """Clips of every class, per split; arrays are memory-mapped when loaded from disk."""
 
     def __init__(self, *, config: SoundLibraryConfig, arrays: dict[str, np.ndarray],
-                 infos: Sequence[ClipInfo], path: Path | None = None, fingerprint: str | None = None) -> None:
+                 infos: Sequence[ClipInfo], path: Path | None = None, fingerprint: str | None = None,
+                 present: frozenset[str] | None = None) -> None:
         self.config = config
         self.path = path
+        # None: every clip. Else the ids whose audio is there (a partial library, core/sounds/partial.py);
+        # the arrays' other rows are unset and any access to them raises CacheError.
+        self.present = present
         # Identifies the clips (cache keys of episodes etc.): the config's for the built-in library,
         # config + file contents for a folder library.
         self.fingerprint = fingerprint or config.fingerprint()
@@ -205,8 +209,18 @@ class SoundLibrary:
         members = self.classes_of(category)
         return slice(self._ranges[(split, members[0])][0], self._ranges[(split, members[-1])][1])
 
+    @property
+    def complete(self) -> bool:
+        return self.present is None
+
+    def _absent(self, what: str) -> CacheError:
+        return CacheError(f"{what}: the sound library at {self.path} holds only the {len(self.present)} clips "
+                          f"of the episodes it was cut for; build the whole library with `{BUILD_COMMAND}`")
+
     def clips(self, split: str = "heard", category: str | None = None, cls: str | None = None) -> np.ndarray:
         """(n, clip_len) float32 clips of a split, optionally of one category or class (a view, not a copy)."""
+        if not self.complete:
+            raise self._absent(f"all {split} clips")
         return self._arrays[split][self._rows(split, category, cls)]
 
     def infos(self, split: str = "heard", category: str | None = None, cls: str | None = None) -> tuple[ClipInfo, ...]:
@@ -221,17 +235,24 @@ class SoundLibrary:
     def clip(self, clip_id: str) -> np.ndarray:
         """A copy of one clip, by id."""
         info = self.info(clip_id)
+        if not self.complete and clip_id not in self.present:
+            raise self._absent(f"clip {clip_id}")
         return np.array(self._arrays[info.split][info.row])
 
-    def sample(self, rng: np.random.Generator, *, category: str, split: str = "heard",
-               cls: str | None = None) -> tuple[np.ndarray, str]:
-        """Draw a clip: a class uniformly among the category's (or ``cls``), then a clip uniformly in it."""
+    def sample_id(self, rng: np.random.Generator, *, category: str, split: str = "heard",
+                  cls: str | None = None) -> str:
+        """Draw a clip id: a class uniformly among the category's (or ``cls``), then a clip uniformly in it."""
         if cls is None:
             members = self.classes_of(category)
             cls = members[int(rng.integers(len(members)))]
         rows = self._rows(split, category, cls)
-        row = int(rng.integers(rows.start, rows.stop))
-        return np.array(self._arrays[split][row]), self._infos[split][row].clip_id
+        return self._infos[split][int(rng.integers(rows.start, rows.stop))].clip_id
+
+    def sample(self, rng: np.random.Generator, *, category: str, split: str = "heard",
+               cls: str | None = None) -> tuple[np.ndarray, str]:
+        """``sample_id``'s draw and the clip."""
+        clip_id = self.sample_id(rng, category=category, split=split, cls=cls)
+        return self.clip(clip_id), clip_id
 
     # ------------------------------------------------------------ disk cache
     @staticmethod

@@ -172,7 +172,7 @@ def draw_episode(rng: np.random.Generator, config: EpisodeConfig, scene_index: i
             f"min_source_distance or use another split")
     sources, start = placed
     categories = _categories(rng, config)
-    clips = tuple(library.sample(rng, category=c, split=config.sound_split)[1] for c in categories)
+    clips = tuple(library.sample_id(rng, category=c, split=config.sound_split) for c in categories)
     return Episode(
         episode_id=episode_id, scene_id=scene.scene_id, scene_split=config.scene_split,
         scene_index=scene_index, scene_preset=config.scene_preset, task=config.task,
