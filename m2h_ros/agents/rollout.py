@@ -34,6 +34,9 @@ def controller_observation(obs: dict, separation: SeparationStep) -> ControllerO
         depth=None if "depth" not in obs else obs["depth"][..., 0])
 
 
+ESTIMATES = ("refined", "monaural")
+
+
 def new_tracker(episode: Episode, controller: str, info: dict, slot: int, start_pose: np.ndarray) -> EpisodeTracker:
     result = EpisodeResult(episode_id=episode.episode_id, controller=controller, task=episode.task,
                            sound_split=episode.sound_split, scene_id=episode.scene_id,
@@ -48,9 +51,12 @@ def truth_of(info: dict, rows) -> StepTruth:
 
 def evaluate_controller(controller: Controller, runner: SeparatorRunner, episodes: Sequence[Episode],
                         library: SoundLibrary, *, env_config: EnvConfig = EnvConfig(camera=False),
-                        rir_cache_dir: Path | None = None, threads: int = 1, progress: bool = True
-                        ) -> list[EpisodeResult]:
-    """Play every episode once with ``controller`` (B = its slots = the runner's); results in list order."""
+                        rir_cache_dir: Path | None = None, threads: int = 1, progress: bool = True,
+                        estimate: str = "refined") -> list[EpisodeResult]:
+    """Play every episode once with ``controller`` (B = its slots = the runner's); results in list order.
+    ``estimate``: the separator output scored, "refined" (f^R, the pipeline's) or "monaural" (f^M: no f^R)."""
+    if estimate not in ESTIMATES:
+        raise ConfigError(f"estimate must be one of {ESTIMATES}, got {estimate!r}")
     episodes = list(episodes)
     b = controller.n_slots
     if runner.n_slots != b:
@@ -77,7 +83,7 @@ def evaluate_controller(controller: Controller, runner: SeparatorRunner, episode
             if index < len(episodes) else None
 
     def observe(slots: np.ndarray, obs: dict, info: dict, separation: SeparationStep) -> None:
-        scores = score_magnitude(separation.refined, obs["audio"][slots], truth_of(info, slots),
+        scores = score_magnitude(getattr(separation, estimate), obs["audio"][slots], truth_of(info, slots),
                                  config=runner.loaded.stft)
         for row, slot in enumerate(slots.tolist()):
             if trackers[slot] is None:

@@ -47,6 +47,7 @@ class EpisodeResult:
     path_length: float = 0.0  # metres moved
     shortest_path: float = 0.0  # geodesic metres from the start to the target
     success: bool = False  # far-target: stopped on the target's node
+    condition: str = ""  # what an experiment varied for this run (e.g. "mic noise 0.1, f^M"); "" otherwise
 
     @property
     def steps(self) -> int:
@@ -190,15 +191,17 @@ def markdown_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> s
 
 def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, title: str = "Results",
                   meta: dict | None = None, plot: bool = True, command: str | None = None,
-                  setup: str | None = None, reference: str | None = None) -> dict[str, Path]:
+                  setup: str | None = None, reference: str | None = None,
+                  by: Sequence[str] = GROUP_KEYS) -> dict[str, Path]:
     """Write results.md, results.csv (one row per episode), results.json (episodes + summary + meta)
     and si_sdr_vs_step.png into ``out_dir``; returns the paths by kind. ``command``, the one line that
     reproduces the results, heads the Markdown table, with ``setup`` (the models and data it ran on,
     which the command alone does not pin); with ``reference`` (a controller's name), the
-    Markdown also has every other controller's paired SI-SDR (GT phase) difference to it."""
+    Markdown also has every other controller's paired SI-SDR (GT phase) difference to it. ``by``: the
+    result fields the table groups by (experiments add "condition")."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    rows = summarize(results)
+    rows = summarize(results, by=by)
     paths = {"markdown": out / "results.md", "csv": out / "results.csv", "json": out / "results.json"}
     note = ("Final-step scores, mean ± 95% CI over episodes. SI-SDR (GT phase): the estimate rebuilt "
             "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
@@ -207,13 +210,13 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
     paired = paired_differences(results, reference=reference) if reference else []
     versus = (f"\nFinal-step SI-SDR (dB, GT phase) minus {reference}'s on the same episodes:\n\n"
               f"{paired_table(paired)}") if paired else ""
-    paths["markdown"].write_text(f"# {title}\n\n{how}{note}\n{markdown_table(rows)}{versus}")
+    paths["markdown"].write_text(f"# {title}\n\n{how}{note}\n{markdown_table(rows, by=by)}{versus}")
     with paths["csv"].open("w", newline="") as stream:
         writer = csv.writer(stream)
-        writer.writerow(["episode_id", *GROUP_KEYS, "scene_id", "target_class", "steps",
+        writer.writerow(["episode_id", *GROUP_KEYS, "condition", "scene_id", "target_class", "steps",
                          *(f"final_{m}" for m in METRICS), "success", "spl", "path_length", "shortest_path"])
         for r in results:
-            writer.writerow([r.episode_id, r.controller, r.task, r.sound_split, r.scene_id, r.target_class,
+            writer.writerow([r.episode_id, r.controller, r.task, r.sound_split, r.condition, r.scene_id, r.target_class,
                              r.steps, *(f"{r.final(m):.6f}" for m in METRICS), int(r.success),
                              f"{r.spl:.6f}", f"{r.path_length:.3f}", f"{r.shortest_path:.3f}"])
     paths["json"].write_text(json.dumps({"meta": meta or {}, "summary": rows, "paired": paired,

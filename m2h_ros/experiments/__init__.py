@@ -1,0 +1,1 @@
+"""Experiments of the supplementary material: evaluation jobs and the sweeps that run them."""
