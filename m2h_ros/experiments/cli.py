@@ -1,0 +1,55 @@
+"""The command line every sweep script shares: which controllers, tasks, splits and episodes, where
+the jobs run (local Ray CPUs or a cluster), where the report goes."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from m2h_ros.errors import M2HError
+from m2h_ros.experiments.sweep import Condition, Sweep, run_sweep, write_sweep
+
+
+def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str, xlabel: str,
+               conditions: Callable[[argparse.Namespace], list[Condition]],
+               add_arguments: Callable[[argparse.ArgumentParser], None] = lambda parser: None,
+               controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target") -> int:
+    """Parse, run the sweep, write ``docs/results/<script stem>/`` (or --out); 2 on a clear error.
+    ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository)."""
+    root = Path(script).resolve().parents[2]
+    script = str(Path(script).resolve().relative_to(root))
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--task", default=task, help="near_target, far_target or both comma-separated")
+    parser.add_argument("--sound-split", default="heard,unheard")
+    parser.add_argument("--controllers", default=controllers, help="comma-separated registry names")
+    parser.add_argument("--count", type=int, default=200, help="test episodes per task x split x condition")
+    parser.add_argument("--chunk", type=int, default=50, help="episodes per Ray job")
+    parser.add_argument("--workers", type=int, default=2, help="local Ray CPUs (ignored with --address)")
+    parser.add_argument("--address", help="an existing Ray cluster ('auto': the one this machine is in)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
+    parser.add_argument("--out", type=Path, default=root / "docs" / "results" / Path(script).stem)
+    parser.add_argument("--no-progress", action="store_true")
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    command = shlex.join(["python", script, *(sys.argv[1:] if argv is None else argv)])
+    started = time.perf_counter()
+    try:
+        sweep = Sweep(controllers=args.controllers.split(","), tasks=args.task.split(","),
+                      sound_splits=args.sound_split.split(","), conditions=conditions(args), count=args.count,
+                      chunk=args.chunk, seed=args.seed)
+        results, rows = run_sweep(sweep, workers=args.workers, address=args.address,
+                                  progress=not args.no_progress, desc=Path(script).stem)
+    except (M2HError, ValueError) as exc:
+        print(f"{Path(script).name}: error: {exc}", file=sys.stderr)
+        return 2
+    meta = {"count": args.count, "controller_seed": args.seed, "workers": args.address or args.workers,
+            "conditions": [c.label for c in sweep.conditions]}
+    paths = write_sweep(results, rows, args.out, title=title, xlabel=xlabel, command=command, meta=meta,
+                        started=started)
+    print(paths["markdown"].read_text())
+    print(", ".join(f"{kind}: {path}" for kind, path in paths.items()))
+    return 0
