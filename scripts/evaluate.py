@@ -77,6 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
     parser.add_argument("--mic-noise", type=float, default=0.0, help="microphone noise std / mixture RMS")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="separator")
+    parser.add_argument("--policy-checkpoint", default="",
+                        help="policy file (a directory for move2hear) for the learned controllers; "
+                             "default: the shipped ones")
     parser.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output directory")
     parser.add_argument("--threads", type=int, default=2,
                         help="torch and rendering threads (2 suits 16 slots on 2 cores)")
@@ -102,7 +105,8 @@ def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence
     results: list[EpisodeResult] = []
     slots = min(args.slots, len(episodes))
     for name in controllers:
-        controller = make_controller(name, slots, seed=args.seed)
+        checkpoint = "" if name in TRAINING_FREE else args.policy_checkpoint
+        controller = make_controller(name, slots, seed=args.seed, checkpoint=checkpoint)
         runner = SeparatorRunner(loaded, slots)
         results += evaluate_controller(controller, runner, episodes, library, env_config=env_config,
                                        threads=args.threads, progress=not args.no_progress)
@@ -132,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
         env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
                                mic_noise=args.mic_noise)
         results = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
-        meta = {"command": command, "checkpoint": shown(args.checkpoint), "task": args.task,
+        meta = {"command": command, "checkpoint": shown(args.checkpoint),
+                "policy_checkpoint": shown(Path(args.policy_checkpoint)) if args.policy_checkpoint else "shipped", "task": args.task,
                 "sound_splits": splits, "first": args.first, "count_per_split": args.count,
                 "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
                 "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),

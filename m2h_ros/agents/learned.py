@@ -91,6 +91,10 @@ class PolicyDriver:
 class LearnedController(Controller):
     """Base of the learned controllers: per-slot target class, sampled or greedy actions."""
 
+    # Before a checkpoint is loaded (what evaluate.py and the sweeps ask to pick the environment):
+    # policies see RGB unless trained with --no-camera, so render it; an instance says what it has.
+    uses_camera: ClassVar[bool] = True
+
     def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False) -> None:
         super().__init__(n_slots, seed=seed)
         if not isinstance(greedy, bool):
