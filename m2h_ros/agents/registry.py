@@ -40,11 +40,15 @@ def controller_class(name: str) -> type[Controller]:
     return getattr(importlib.import_module(module), cls)
 
 
-def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str = "") -> Controller:
-    """A controller of ``n_slots`` slots; ``checkpoint`` is for learned controllers only."""
+def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str = "", **options) -> Controller:
+    """A controller of ``n_slots`` slots; ``checkpoint`` and ``options`` (e.g. move2hear's
+    ``switch_step``) are for learned controllers only."""
     cls = controller_class(name)
     if name in TRAINING_FREE:
-        if checkpoint:
-            raise ConfigError(f"controller {name!r} needs no training; it takes no checkpoint")
+        if checkpoint or options:
+            raise ConfigError(f"controller {name!r} needs no training; it takes no checkpoint or options")
         return cls(n_slots, seed=seed)
-    return cls(n_slots, seed=seed, checkpoint=checkpoint, greedy=name.endswith(GREEDY))
+    try:
+        return cls(n_slots, seed=seed, checkpoint=checkpoint, greedy=name.endswith(GREEDY), **options)
+    except TypeError as error:  # an option the class does not take
+        raise ConfigError(f"controller {name!r}: {error}") from error

@@ -28,6 +28,7 @@ class EvalJob:
     library: str | SoundLibrary = ""  # sim_world.sound_library name ("" default, "small", a folder) or one in memory
     separator: str = ""  # separator checkpoint; "" the shipped one
     controller_checkpoint: str = ""  # learned controllers; "" the shipped policy
+    controller_options: tuple[tuple[str, object], ...] = ()  # keyword options, e.g. (("switch_step", 60),)
     estimate: str = "refined"  # separator output scored: "refined" (f^R) or "monaural" (f^M, no f^R)
     condition: str = ""  # recorded in every result (what the sweep varies)
     seed: int = 0  # stochastic controllers
@@ -55,7 +56,8 @@ def run_eval_job(job: EvalJob) -> list[EpisodeResult]:
     library = sim_world.sound_library(job.library) if isinstance(job.library, str) else job.library
     slots = min(job.slots, len(job.episodes))
     loaded = load_separator(job.separator or DEFAULT_SEPARATOR_CHECKPOINT)
-    controller = make_controller(job.controller, slots, seed=job.seed, checkpoint=job.controller_checkpoint)
+    controller = make_controller(job.controller, slots, seed=job.seed, checkpoint=job.controller_checkpoint,
+                                 **dict(job.controller_options))
     results = evaluate_controller(controller, SeparatorRunner(loaded, slots), job.episodes, library,
                                   env_config=job.env, threads=1, progress=False, estimate=job.estimate)
     return [dataclasses.replace(r, condition=job.condition) for r in results]

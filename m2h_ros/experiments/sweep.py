@@ -36,6 +36,7 @@ class Condition:
     series: str = ""  # appended to the controller in the legend (e.g. "no f^R")
     episodes: dict = field(default_factory=dict)  # EpisodeConfig overrides
     env: dict = field(default_factory=dict)  # EnvConfig overrides
+    controller: dict = field(default_factory=dict)  # learned controllers' options (make_controller)
     estimate: str = "refined"
 
 
@@ -70,6 +71,7 @@ def sweep_jobs(sweep: Sweep, library: SoundLibrary) -> tuple[list[EvalJob], list
                     for first in range(0, len(chosen), sweep.chunk):
                         jobs.append(EvalJob(controller=name, episodes=tuple(chosen[first:first + sweep.chunk]),
                                             env=env, library=sweep.library, estimate=cond.estimate,
+                                            controller_options=tuple(sorted(cond.controller.items())),
                                             condition=cond.label, seed=sweep.seed))
                         keys.append((name, task, split, index))
     return jobs, keys

@@ -99,13 +99,17 @@ def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_pat
     controller.reset(1, start("near_target"))
     for step, expected in ((0, [STOP, TURN_LEFT]), (79, [STOP, TURN_LEFT]), (80, [TURN_LEFT, TURN_LEFT])):
         np.testing.assert_array_equal(controller.act(observation(2, step)), expected)
-    early = learned.Move2Hear(1, checkpoint=str(tmp_path), switch_step=3)
+    early = make_controller("move2hear", 1, checkpoint=str(tmp_path), switch_step=3)
     early.reset(0, start("far_target"))
     assert [int(early.act(observation(1, s))[0]) for s in range(5)] == [STOP] * 3 + [TURN_LEFT] * 2
     with pytest.raises(CheckpointError, match="directory"):
         make_controller("move2hear", 1, checkpoint=str(tmp_path / "policy_quality.pt"))
     with pytest.raises(ConfigError, match="switch_step"):
         learned.Move2Hear(1, checkpoint=str(tmp_path), switch_step=-1)
+    with pytest.raises(ConfigError, match="'move2hear_quality': .*switch_step"):
+        make_controller("move2hear_quality", 1, checkpoint=str(tmp_path / "policy_quality.pt"), switch_step=3)
+    with pytest.raises(ConfigError, match="'doa' needs no training"):
+        make_controller("doa", 1, switch_step=3)
 
 
 def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
