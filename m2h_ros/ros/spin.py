@@ -39,12 +39,18 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     except M2HError as exc:
         rclpy.logging.get_logger(node_type.__name__).fatal(f"{type(exc).__name__}: {exc}")
         code = 2
+    except Exception:
+        # Ctrl-C / SIGTERM invalidates the context at once: a callback running then (e.g. a graph
+        # query) fails with RCLError. That is the shutdown that was asked for, not a crash.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             usage = resource.getrusage(resource.RUSAGE_SELF)
-            # Per-process CPU: where a graph run's time goes (scripts/bench/pipeline.py sums it).
-            node.get_logger().info(f"cpu time {usage.ru_utime + usage.ru_stime:.2f} s "
-                                   f"(user {usage.ru_utime:.2f}, system {usage.ru_stime:.2f})")
+            # Per-process CPU: where a graph run's time goes. Printed, not logged: after Ctrl-C the
+            # node's rosout publisher has no context left.
+            print(f"{node.get_name()}: cpu time {usage.ru_utime + usage.ru_stime:.2f} s "
+                  f"(user {usage.ru_utime:.2f}, system {usage.ru_stime:.2f})", flush=True)
             node.destroy_node()
         rclpy.try_shutdown()
     sys.exit(code)
