@@ -18,6 +18,13 @@ from m2h_ros.errors import ConfigError
 SCALAR_TYPES = (bool, int, float, str)
 
 
+def reject_unknown_fields(cls: type, values: Mapping[str, Any]) -> None:
+    """ConfigError naming the keys of ``values`` that are not fields of dataclass ``cls``."""
+    unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
+    if unknown:
+        raise ConfigError(f"{cls.__name__} has no field(s) {sorted(unknown)}")
+
+
 def setting(default: Any, description: str, *, min: float | None = None, max: float | None = None,
             choices: tuple | None = None) -> Any:
     """A dataclass field with a description and an optional inclusive range or set of choices."""

@@ -40,17 +40,7 @@ from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeCon
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def shown(path: Path) -> str:
-    """A path as the tables show it: relative to the repository when inside it."""
-    try:
-        return str(path.resolve().relative_to(ROOT))
-    except ValueError:
-        return str(path)
+from m2h_ros.paths import repo_relative  # noqa: E402
 
 
 def names(text: str, *, allowed: Sequence[str], what: str) -> list[str]:
@@ -136,8 +126,9 @@ def main(argv: list[str] | None = None) -> int:
         env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
                                mic_noise=args.mic_noise)
         results = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
-        meta = {"command": command, "checkpoint": shown(args.checkpoint),
-                "policy_checkpoint": shown(Path(args.policy_checkpoint)) if args.policy_checkpoint else "shipped", "task": args.task,
+        meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
+                "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",
+                "task": args.task,
                 "sound_splits": splits, "first": args.first, "count_per_split": args.count,
                 "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
                 "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),

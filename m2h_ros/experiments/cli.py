@@ -12,6 +12,7 @@ from pathlib import Path
 
 from m2h_ros.errors import M2HError
 from m2h_ros.experiments.sweep import Condition, Sweep, run_sweep, write_sweep
+from m2h_ros.paths import REPO_DIR, repo_relative
 
 
 def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str, xlabel: str,
@@ -20,8 +21,7 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
                controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target") -> int:
     """Parse, run the sweep, write ``docs/results/<script stem>/`` (or --out); 2 on a clear error.
     ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository)."""
-    root = Path(script).resolve().parents[2]
-    script = str(Path(script).resolve().relative_to(root))
+    script = repo_relative(script)
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--task", default=task, help="near_target, far_target or both comma-separated")
     parser.add_argument("--sound-split", default="heard,unheard")
@@ -31,7 +31,7 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
     parser.add_argument("--workers", type=int, default=2, help="local Ray CPUs (ignored with --address)")
     parser.add_argument("--address", help="an existing Ray cluster ('auto': the one this machine is in)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
-    parser.add_argument("--out", type=Path, default=root / "docs" / "results" / Path(script).stem)
+    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / Path(script).stem)
     parser.add_argument("--no-progress", action="store_true")
     add_arguments(parser)
     args = parser.parse_args(argv)

@@ -91,6 +91,23 @@ def _umask() -> int:
     return mask
 
 
+def require_entries(payload: dict[str, Any], path: Path, keys: tuple[str, ...]) -> None:
+    for key in keys:
+        if key not in payload:
+            raise CheckpointError(f"checkpoint {path} lacks the entry {key!r}")
+
+
+def model_settings(payload: dict[str, Any], path: Path, config_type):
+    """(model config, STFT config) of a checkpoint, checked against each other; CheckpointError if not."""
+    try:
+        config = config_type.from_dict(payload["model_args"])
+        stft_config = StftConfig.from_dict(payload["stft"])
+        config.check_stft(stft_config)
+    except (ConfigError, TypeError) as exc:
+        raise CheckpointError(f"checkpoint {path} has invalid settings: {exc}") from exc
+    return config, stft_config
+
+
 def read_checkpoint(path: str | os.PathLike, *, kind: str, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """Load and check the envelope of a checkpoint of the given kind."""
     path = Path(path)
@@ -168,20 +185,13 @@ def load_separator(path: str | os.PathLike, *, expected_config: SeparatorConfig 
         raise CheckpointError(f"default separator checkpoint {path} not found; build it with "
                               f"`{DEFAULT_SEPARATOR_BUILD_COMMAND}`")
     payload = read_checkpoint(path, kind=SEPARATOR_KIND, map_location=map_location)
-    for key in ("stft", "classes"):
-        if key not in payload:
-            raise CheckpointError(f"checkpoint {path} lacks the entry {key!r}")
+    require_entries(payload, path, ("stft", "classes"))
     version = payload.get("separator_version", 1)
     if version != SEPARATOR_VERSION:
         raise CheckpointError(f"checkpoint {path} holds a version-{version} separator (other output "
                               f"parameterisation), this code needs version {SEPARATOR_VERSION}; retrain it with "
                               f"`{DEFAULT_SEPARATOR_BUILD_COMMAND} --out {path}`")
-    try:
-        config = SeparatorConfig.from_dict(payload["model_args"])
-        stft_config = StftConfig.from_dict(payload["stft"])
-        config.check_stft(stft_config)
-    except (ConfigError, TypeError) as exc:
-        raise CheckpointError(f"checkpoint {path} has invalid settings: {exc}") from exc
+    config, stft_config = model_settings(payload, path, SeparatorConfig)
     classes = tuple(payload["classes"])
     problems: list[str] = []
     if expected_config is not None:

@@ -39,8 +39,10 @@ from torch import nn
 
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, class_channel_value, stft, to_slices
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT
+from m2h_ros.config import reject_unknown_fields
 from m2h_ros.errors import CheckpointError, ConfigError
-from m2h_ros.models.checkpoint import load_state_checked, read_checkpoint, write_checkpoint
+from m2h_ros.models.checkpoint import (load_state_checked, model_settings, read_checkpoint, require_entries,
+                                       write_checkpoint)
 
 POLICY_KIND = "m2h_policy"
 PRESET_NAMES = ("paper", "compact")
@@ -116,9 +118,7 @@ class PolicyConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> PolicyConfig:
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(f"PolicyConfig has no field(s) {sorted(unknown)}")
+        reject_unknown_fields(cls, values)
         return cls(**values)
 
 
@@ -308,17 +308,10 @@ def load_policy(path: str | os.PathLike, *, policy_kind: str | None = None,
     """Rebuild a PolicyNet from ``path``; ``policy_kind`` (when given) must be the one it was trained as."""
     path = Path(path)
     payload = read_checkpoint(path, kind=POLICY_KIND, map_location=map_location)
-    for key in ("policy_kind", "stft"):
-        if key not in payload:
-            raise CheckpointError(f"checkpoint {path} lacks the entry {key!r}")
+    require_entries(payload, path, ("policy_kind", "stft"))
     if policy_kind is not None and payload["policy_kind"] != policy_kind:
         raise CheckpointError(f"checkpoint {path} holds a {payload['policy_kind']!r} policy, expected {policy_kind!r}")
-    try:
-        config = PolicyConfig.from_dict(payload["model_args"])
-        stft_config = StftConfig.from_dict(payload["stft"])
-        config.check_stft(stft_config)
-    except (ConfigError, TypeError) as exc:
-        raise CheckpointError(f"checkpoint {path} has invalid settings: {exc}") from exc
+    config, stft_config = model_settings(payload, path, PolicyConfig)
     net = PolicyNet(config)
     load_state_checked(net, payload["state_dict"], path=path)
     net.to(map_location).eval()

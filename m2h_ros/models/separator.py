@@ -31,6 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, from_slices, rebuild_with_phase, stft
+from m2h_ros.config import reject_unknown_fields
 from m2h_ros.errors import AudioError, ConfigError
 from m2h_ros.models.unet import MemoryRefiner, UNet
 
@@ -95,9 +96,7 @@ class SeparatorConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> SeparatorConfig:
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(f"SeparatorConfig has no field(s) {sorted(unknown)}")
+        reject_unknown_fields(cls, values)
         return cls(**{**values, "unet_channels": tuple(values.get("unet_channels", cls.unet_channels))})
 
 

@@ -73,6 +73,7 @@ from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separat
 from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_inputs, save_policy  # noqa: E402
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
+from m2h_ros.paths import repo_relative  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -105,7 +106,7 @@ class PPOConfig:
     preset: str = "compact"  # policy widths: paper | compact
     episodes: EpisodeConfig | None = None  # None: train scenes, heard sounds, the kind's task
     env: EnvConfig = field(default_factory=EnvConfig)
-    separator: str = str(DEFAULT_SEPARATOR_CHECKPOINT)
+    separator: str = ""  # checkpoint; "" the shipped one (so stored configs name no machine's folders)
     n_envs: int = 16  # slots per worker
     n_steps: int = 20  # rollout length per update (the original's num_steps)
     updates: int = 1000
@@ -335,7 +336,7 @@ class PPOTrainer:
         self.policy_config = config.policy_config()
         self.net = PolicyNet(self.policy_config).to(self.device)
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=config.lr, eps=config.adam_eps)
-        self.loaded = load_separator(config.separator, map_location=self.device)
+        self.loaded = load_separator(config.separator or DEFAULT_SEPARATOR_CHECKPOINT, map_location=self.device)
         self.policy_config.check_stft(self.loaded.stft)
         if self.loaded.stft != config.env.stft:
             raise ConfigError("the separator's STFT settings differ from the environment's")
@@ -617,7 +618,7 @@ class PPOTrainer:
             wall = self.wall_before + time.perf_counter() - self.session_start
             metadata = {"command": self.command, "updates": self.update, "env_steps": self.env_steps,
                         "wall_seconds": round(wall, 1), "workers": self.world, "machine": _machine(),
-                        "separator": str(self.config.separator), "refiner_trained": self.refining,
+                        "separator": repo_relative(self.loaded.path), "refiner_trained": self.refining,
                         "config": self.config.to_dict()}
             save_policy(policy, self.net, policy_kind=self.config.kind, stft_config=self.loaded.stft,
                         metadata=metadata)
@@ -722,7 +723,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n-steps", type=int, default=PPOConfig.n_steps)
     parser.add_argument("--episodes", type=int, default=2000, help="training episodes (train scenes, heard sounds)")
     parser.add_argument("--task", choices=("near_target", "far_target"), help="default: the kind's")
-    parser.add_argument("--separator", default=str(DEFAULT_SEPARATOR_CHECKPOINT))
+    parser.add_argument("--separator", default="", help="separator checkpoint (default: the shipped one)")
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,
                         help="passes of f^R's L1 per update (quality)")

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.fft
 import scipy.signal
 
+from m2h_ros.config import reject_unknown_fields
 from m2h_ros.errors import AudioError, ConfigError
 
 Reshapeable = TypeVar("Reshapeable")  # numpy array or torch tensor: slicing only uses .shape and .reshape
@@ -101,9 +102,7 @@ class StftConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> StftConfig:
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(f"StftConfig has no field(s) {sorted(unknown)}")
+        reject_unknown_fields(cls, values)
         return cls(**values)
 
 
