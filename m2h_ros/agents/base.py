@@ -55,15 +55,16 @@ class EpisodeStart:
 class ControllerObservation:
     """One step's observation of B slots (leading dim B everywhere; images None without a camera).
 
-    Magnitudes are linear |STFT| in the (F, T) = (512, 32) layout of :mod:`m2h_ros.core.audio.stft`.
+    Magnitudes are linear |STFT| in the (F, T) = (512, 32) layout of :mod:`m2h_ros.core.audio.stft`;
+    the separator's outputs are None for a controller that does not use them (``uses_separator``).
     """
 
     step: np.ndarray  # (B,) int64, 0 = the observation after the episode's reset
     pose: np.ndarray  # (B, 3) float32 odometry: x, y (m), yaw (rad, counter-clockwise from +x)
     audio: np.ndarray  # (B, 2, N) float32 binaural mixture as heard (left, right)
-    separated_binaural: np.ndarray  # (B, 2, F, T) float32 f^B's estimate of the target as heard
-    monaural: np.ndarray  # (B, F, T) float32 f^M's monaural estimate
-    refined: np.ndarray  # (B, F, T) float32 f^R's refined estimate (acoustic memory)
+    separated_binaural: np.ndarray | None  # (B, 2, F, T) float32 f^B's estimate of the target as heard
+    monaural: np.ndarray | None  # (B, F, T) float32 f^M's monaural estimate
+    refined: np.ndarray | None  # (B, F, T) float32 f^R's refined estimate (acoustic memory)
     rgb: np.ndarray | None = None  # (B, H, W, 3) uint8
     depth: np.ndarray | None = None  # (B, H, W) float32 metres
 
@@ -101,6 +102,10 @@ class Controller(ABC):
     summary: ClassVar[str]
     #: Whether the controller needs camera images (the sim may then skip rendering them).
     uses_camera: ClassVar[bool] = False
+    #: Whether it reads the separator's outputs. If not, it gets None for them, and the controller
+    #: node neither subscribes to them nor waits for the separator: its command leaves while the
+    #: separator still works on the step (off the lockstep's critical path).
+    uses_separator: ClassVar[bool] = True
 
     def __init__(self, n_slots: int, *, seed: int = 0) -> None:
         if isinstance(n_slots, bool) or not isinstance(n_slots, (int, np.integer)) or n_slots < 1:

@@ -37,7 +37,9 @@ def hold_in_place(count: np.ndarray, far: np.ndarray) -> np.ndarray:
 
 
 class _Baseline(Controller):
-    """Keeps each slot's task (whether Stop would end its episode)."""
+    """Keeps each slot's task (whether Stop would end its episode). No baseline reads the separator."""
+
+    uses_separator = False
 
     def __init__(self, n_slots: int, *, seed: int = 0) -> None:
         super().__init__(n_slots, seed=seed)

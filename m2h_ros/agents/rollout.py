@@ -26,11 +26,14 @@ from m2h_ros.errors import ConfigError
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner
 
 
-def controller_observation(obs: dict, separation: SeparationStep) -> ControllerObservation:
-    """What a controller sees of an environment observation (no ground truth: ``info`` is not read)."""
+def controller_observation(obs: dict, separation: SeparationStep, *,
+                           uses_separator: bool = True) -> ControllerObservation:
+    """What a controller sees of an environment observation (no ground truth: ``info`` is not read);
+    the separator's outputs only if it ``uses_separator`` (as the controller node gives them)."""
+    outputs = (separation.binaural, separation.monaural, separation.refined) if uses_separator else (None,) * 3
     return ControllerObservation(
-        step=obs["step"], pose=obs["pose"], audio=obs["audio"], separated_binaural=separation.binaural,
-        monaural=separation.monaural, refined=separation.refined, rgb=obs.get("rgb"),
+        step=obs["step"], pose=obs["pose"], audio=obs["audio"], separated_binaural=outputs[0],
+        monaural=outputs[1], refined=outputs[2], rgb=obs.get("rgb"),
         depth=None if "depth" not in obs else obs["depth"][..., 0])
 
 
@@ -104,7 +107,8 @@ def evaluate_controller(controller: Controller, runner: SeparatorRunner, episode
         while any(r is None for r in results):
             separation = runner.step(obs["audio"], classes, reset)
             observe(all_slots, obs, info, separation)
-            actions = controller.act(controller_observation(obs, separation))
+            actions = controller.act(controller_observation(obs, separation,
+                                                            uses_separator=controller.uses_separator))
             for slot in range(b):
                 if trackers[slot] is not None:
                     trackers[slot].act(int(obs["step"][slot]), int(actions[slot]))

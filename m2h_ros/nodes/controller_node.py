@@ -1,8 +1,9 @@
 """controller_node: chooses each step's MotionCommand with any controller of m2h_ros.agents.
 
-For step k it gathers the mixture, the separator's three outputs and the odometry of that step (and
-the camera images when the controller uses them), builds the same ControllerObservation the
-in-process evaluation builds, and publishes one command. It never subscribes to the ground truth.
+For step k it gathers the mixture and the odometry of that step, the separator's three outputs and
+the camera images when the controller uses them, builds the same ControllerObservation the
+in-process evaluation builds, and publishes one command. A controller that does not read the
+separator (every training-free baseline) answers without waiting for it. It never subscribes to the ground truth.
 No command answers an episode's last observation (step max_steps, or the one after a far-target Stop)."""
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ class ControllerNode(Node):
         self.config: ControllerConfig = declare_config(self, ControllerConfig)
         cfg = self.config
         self.controller = SingleEpisode(make_controller(cfg.policy, 1, seed=cfg.seed, checkpoint=cfg.checkpoint))
-        camera = self.controller.controller.uses_camera
-        parts = {"audio", "odom", "binaural", "monaural", "refined"} | ({"rgb", "depth"} if camera else set())
+        camera, separator = self.controller.controller.uses_camera, self.controller.controller.uses_separator
+        parts = ({"audio", "odom"} | ({"binaural", "monaural", "refined"} if separator else set())
+                 | ({"rgb", "depth"} if camera else set()))
         self.gate = EpisodeGate(self.on_step)  # steps wait for their episode's info
         self.assembler = StepAssembler(parts, self.gate.step)
         self.pub_command = self.create_publisher(MotionCommand, topics.COMMAND, STEP,
@@ -53,10 +55,10 @@ class ControllerNode(Node):
         subscribe(BinauralAudio, topics.AUDIO, self.on_audio)
         subscribe(Odometry, topics.ODOM, lambda m: self.assembler.add_stamped(
             convert.nanoseconds_of(m.header.stamp), "odom", convert.pose_from_odometry(m)))
-        for topic, part, kind, shape in ((topics.SEPARATED_BINAURAL, "binaural", Spectrogram.SEPARATED_BINAURAL,
-                                          (2, F, T)),
-                                         (topics.MONAURAL, "monaural", Spectrogram.MONAURAL_ESTIMATE, (F, T)),
-                                         (topics.REFINED, "refined", Spectrogram.REFINED, (F, T))):
+        separator_outputs = ((topics.SEPARATED_BINAURAL, "binaural", Spectrogram.SEPARATED_BINAURAL, (2, F, T)),
+                             (topics.MONAURAL, "monaural", Spectrogram.MONAURAL_ESTIMATE, (F, T)),
+                             (topics.REFINED, "refined", Spectrogram.REFINED, (F, T)))
+        for topic, part, kind, shape in separator_outputs if separator else ():
             subscribe(Spectrogram, topic, lambda m, part=part, kind=kind, shape=shape: self.assembler.add(
                 (m.episode_id, m.step), part, convert.spectrogram_from_msg(m, kind=kind, shape=shape)))
         if camera:
@@ -82,9 +84,9 @@ class ControllerNode(Node):
             return  # the episode's last observation: nothing to answer
         obs = ControllerObservation(
             step=np.array([step]), pose=parts["odom"][None], audio=parts["audio"][None],
-            separated_binaural=parts["binaural"][None], monaural=parts["monaural"][None],
-            refined=parts["refined"][None], rgb=parts["rgb"][None] if "rgb" in parts else None,
-            depth=parts["depth"][None] if "depth" in parts else None)
+            **{field: parts[part][None] if part in parts else None
+               for field, part in (("separated_binaural", "binaural"), ("monaural", "monaural"),
+                                   ("refined", "refined"), ("rgb", "rgb"), ("depth", "depth"))})
         action = self.controller.act(obs)
         self.stopped = action == STOP and info.task == "far_target"
         self.pub_command.publish(convert.command_msg(action, controller=self.controller.name, episode_id=episode_id,

@@ -10,7 +10,7 @@ from m2h_ros import topics
 # The topics each pipeline node must be subscribed to before the first step.
 CONSUMERS = {
     "separator_node": (topics.AUDIO, topics.EPISODE),
-    "controller_node": (topics.AUDIO, topics.ODOM, topics.EPISODE, topics.REFINED),
+    "controller_node": (topics.AUDIO, topics.ODOM, topics.EPISODE),  # + the separator's, if its controller reads them
     "evaluator_node": (topics.GROUND_TRUTH, topics.AUDIO, topics.AGENT_POSE, topics.EPISODE, topics.REFINED,
                        topics.COMMAND),
 }

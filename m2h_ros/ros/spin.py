@@ -4,6 +4,7 @@ import cProfile
 import os
 import resource
 import sys
+import time
 from pathlib import Path
 
 import rclpy
@@ -26,7 +27,7 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
         node = node_type()
         profile_dir = os.environ.get("M2H_PROFILE_DIR")
         if profile_dir:  # cProfile of the spin (not the start-up), one <node>.prof per process
-            profiler = cProfile.Profile()
+            profiler = cProfile.Profile(time.process_time)  # CPU, not wall time: idle waits cost nothing
             try:
                 profiler.runcall(rclpy.spin, node)
             finally:

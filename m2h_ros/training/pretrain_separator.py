@@ -36,7 +36,9 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
+import hashlib
 import json
+import math
 import os
 import platform
 import shlex
@@ -60,9 +62,9 @@ from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
-from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, save_separator  # noqa: E402
+from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
-from m2h_ros.paths import repo_relative  # noqa: E402
+from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
 from m2h_ros.training.separator_data import (  # noqa: E402
     BatchSource,
     SeparatorBatch,
@@ -99,6 +101,10 @@ class PretrainConfig:
     model: SeparatorConfig = field(default_factory=_compact)
     seed: int = 0  # weights
     lr: float = 5e-4  # Adam, both stages (the seed's pretraining rate)
+    # Stage 1 only: None keeps ``lr`` constant (the seed); a float anneals it to this value along a
+    # cosine over the stage's batches (so then the epoch count is part of the result).
+    final_lr: float | None = None
+    init_from: str = ""  # a separator checkpoint whose weights stage 1 starts from ("" = fresh weights)
     epochs: int = 8  # stage 1 epochs of ...
     batches_per_epoch: int = 500  # ... this many batches of train_data
     refiner_epochs: int = 4
@@ -120,6 +126,10 @@ class PretrainConfig:
                 raise ConfigError(f"PretrainConfig.{name} must be an int >= {low}, got {value!r}")
         if not (isinstance(self.lr, float) and 0 < self.lr < 1):
             raise ConfigError(f"PretrainConfig.lr must be a float in (0, 1), got {self.lr!r}")
+        if self.final_lr is not None and not (isinstance(self.final_lr, float) and 0 < self.final_lr <= self.lr):
+            raise ConfigError(f"PretrainConfig.final_lr must be None or a float in (0, lr], got {self.final_lr!r}")
+        if not isinstance(self.init_from, str):
+            raise ConfigError(f"PretrainConfig.init_from must be a checkpoint path string, got {self.init_from!r}")
         for name in ("train_data", "refiner_data", "val_data"):
             stream = getattr(self, name)
             if not isinstance(stream, StreamConfig):
@@ -131,11 +141,18 @@ class PretrainConfig:
         self.model.check_stft(self.train_data.env.stft)
 
     def result_fields(self) -> dict[str, Any]:
-        """The fields a resumed run must share with the run it continues. Not the epoch counts: the
-        learning rate is constant and batch i is the same in any run, so continuing with more (or
+        """The fields a resumed run must share with the run it continues. Not the epoch counts while
+        the learning rate is constant: batch i is the same in any run, so continuing with more (or
         fewer) epochs of the current stage is the run that had that many from the start."""
-        return {k: v for k, v in dataclasses.asdict(self).items()
-                if k not in ("threads", "workers", "epochs", "refiner_epochs")}
+        free = {"threads", "workers", "refiner_epochs"} | ({"epochs"} if self.final_lr is None else set())
+        return {k: v for k, v in dataclasses.asdict(self).items() if k not in free}
+
+    def stage1_lr(self, batch: int) -> float:
+        """Stage 1's learning rate at its ``batch``-th batch (0-based)."""
+        if self.final_lr is None:
+            return self.lr
+        progress = batch / max(self.epochs * self.batches_per_epoch - 1, 1)
+        return self.final_lr + 0.5 * (self.lr - self.final_lr) * (1.0 + math.cos(math.pi * progress))
 
 
 @dataclass
@@ -156,6 +173,17 @@ class _State:
     seconds: dict[str, float] = field(default_factory=lambda: {"setup": 0.0, **{s: 0.0 for s in STAGES}})
     model: dict[str, torch.Tensor] | None = None
     optimizer: dict[str, Any] | None = None
+
+
+def _initial_weights(config: PretrainConfig) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The weights of ``config.init_from`` and a description of it (path, digest, what made it)."""
+    path = Path(config.init_from)
+    path = path if path.is_absolute() else REPO_DIR / path  # stored repo-relative
+    loaded = load_separator(path, expected_config=config.model, expected_stft=config.train_data.env.stft,
+                            expected_classes=list(TARGET_CATEGORIES))
+    about = {"path": config.init_from, "sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16],
+             "command": loaded.metadata.get("command"), "observations_seen": loaded.metadata.get("observations_seen")}
+    return loaded.separator.state_dict(), about
 
 
 def state_path(out: Path) -> Path:
@@ -316,8 +344,9 @@ def _train_stage(stage: str, config: PretrainConfig, state: _State, separator: S
                  loss: Callable[[SeparatorBatch], tuple[torch.Tensor, dict[str, float]]],
                  validate: Callable[[], dict[str, float]], select: str, library: SoundLibrary,
                  save: Callable[[], None], on_epoch: EpochHook, progress: bool,
-                 rir_cache_dir: Path | None) -> None:
-    """Epochs of one stage from ``state`` on; keeps the best validation ``select`` weights in ``state``."""
+                 rir_cache_dir: Path | None, lr_at: Callable[[int], float] | None = None) -> None:
+    """Epochs of one stage from ``state`` on; keeps the best validation ``select`` weights in ``state``.
+    ``lr_at(i)``: the learning rate of the stage's batch i (default: ``config.lr`` throughout)."""
     optimizer = torch.optim.Adam(parameters, lr=config.lr)
     if state.stage == stage and state.optimizer is not None:
         optimizer.load_state_dict(state.optimizer)
@@ -331,7 +360,10 @@ def _train_stage(stage: str, config: PretrainConfig, state: _State, separator: S
         sums: dict[str, float] = {}
         bar = tqdm(range(batches_per_epoch), disable=not progress, desc=f"{stage} epoch {epoch}/{epochs}",
                    unit="batch", leave=False)
-        for _ in bar:
+        for step in bar:
+            if lr_at is not None:
+                for group in optimizer.param_groups:
+                    group["lr"] = lr_at((epoch - 1) * batches_per_epoch + step)
             total, parts = loss(next(batches))
             optimizer.zero_grad()
             total.backward()
@@ -366,6 +398,11 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
     state_file = state_path(out)
     state = _load_state(state_file, config) if state_file.exists() and not fresh else _State()
     resumed = {"stage": state.stage, "epoch": state.epoch} if state.model is not None else None
+    initialised_from = None
+    if config.init_from:
+        weights, initialised_from = _initial_weights(config)
+        if state.model is None:
+            separator.load_state_dict(weights)
     if state.model is not None:
         separator.load_state_dict(state.model)
     for stream in (config.train_data, config.refiner_data, config.val_data):
@@ -391,7 +428,7 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
                      [p for m in frozen for p in m.parameters()], list(frozen),
                      stream=config.train_data, epochs=config.epochs, batches_per_epoch=config.batches_per_epoch,
                      loss=stage1_loss, validate=lambda: evaluate_stage1(separator, val), select="monaural_l1",
-                     **common)
+                     lr_at=config.stage1_lr, **common)
         # Stage 2 starts from the best stage-1 weights (its refiner still the untrained one).
         separator.load_state_dict(state.best["stage1"]["state"])
         state.stage, state.epoch, state.optimizer = "stage2", 0, None
@@ -425,6 +462,7 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
                   **{k: v for k, v in history["stage2"][best2 - 1].items() if k != "epoch"}},
         "history": history,
         "resumed_from": resumed,
+        "initialised_from": initialised_from,
         "wall_seconds": {**seconds, "total": round(sum(state.seconds.values()), 1)},
         "observations_per_second": {s: round(samples[s] / max(state.seconds[s], 1e-9), 1) for s in STAGES},
         "machine": _machine(),
@@ -456,6 +494,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--source-nodes", type=int, default=None,
                         help="place sources on this many nodes per scene only (fewer RIR source nodes to "
                              "simulate; default: every node)")
+    parser.add_argument("--init-from", type=Path, default=None,
+                        help="start stage 1 from this separator checkpoint's weights (fine-tuning)")
+    parser.add_argument("--final-lr", type=float, default=None,
+                        help="anneal stage 1's learning rate to this along a cosine (default: constant)")
     parser.add_argument("--threads", type=int, default=defaults.threads, help="torch threads of the trainer")
     parser.add_argument("--workers", type=int, default=defaults.workers, help="data loader processes")
     parser.add_argument("--fresh", action="store_true", help="ignore a saved training state and start afresh")
@@ -467,7 +509,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     config = PretrainConfig(model=SeparatorConfig.preset(args.preset), seed=args.seed, epochs=args.epochs,
                             batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
                             refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
-                            workers=args.workers,
+                            workers=args.workers, final_lr=args.final_lr,
+                            init_from=repo_relative(args.init_from) if args.init_from else "",
                             train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
                                                              source_nodes=args.source_nodes),
                             refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,

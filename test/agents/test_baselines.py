@@ -8,7 +8,7 @@ import pytest
 from m2h_ros.agents.base import ControllerObservation, EpisodeStart
 from m2h_ros.agents.baselines import (DirectionOfArrival, MoveForward, ProximityPrior, RandomActions,
                                       RotateInPlace, StandInPlace)
-from m2h_ros.agents.registry import TRAINING_FREE, make_controller
+from m2h_ros.agents.registry import LEARNED, TRAINING_FREE, controller_class, make_controller
 from m2h_ros.agents.rollout import controller_observation
 from m2h_ros.core.audio.doa import gcc_phat_itd, interaural_level_difference, lateral_sine, max_itd_samples
 from m2h_ros.core.audio.stft import stft
@@ -24,17 +24,21 @@ def start(task="near_target", seed=7, episode_id="e0", max_steps=20) -> EpisodeS
     return EpisodeStart(episode_id, task, "speech", max_steps, seed)
 
 
-def observe(step, pose, *, audio=None, separated=None) -> ControllerObservation:
-    """A one-slot observation; audio silent and separator outputs zero unless given."""
+def observe(step, pose, *, audio=None) -> ControllerObservation:
+    """A one-slot observation as a baseline gets it (no separator outputs); audio silent unless given."""
     audio = np.zeros((1, 2, N), np.float32) if audio is None else audio[None].astype(np.float32)
-    separated = np.zeros((1, 2, F, T), np.float32) if separated is None else separated[None]
     return ControllerObservation(step=np.array([step]), pose=np.asarray([pose], np.float32), audio=audio,
-                                 separated_binaural=separated, monaural=np.zeros((1, F, T), np.float32),
-                                 refined=np.zeros((1, F, T), np.float32))
+                                 separated_binaural=None, monaural=None, refined=None)
+
+
+def test_no_baseline_reads_the_separator_and_every_learned_controller_does():
+    # What lets the controller node answer a baseline's step without waiting for the separator.
+    assert TRAINING_FREE and not any(controller_class(name).uses_separator for name in TRAINING_FREE)
+    assert LEARNED and all(controller_class(name).uses_separator for name in LEARNED)
 
 
 def no_separation(b: int) -> SeparationStep:
-    """Separator outputs of zeros (the controllers tested with it do not read them)."""
+    """Separator outputs of zeros (baselines get None in their place: uses_separator is False)."""
     return SeparationStep(np.zeros((b, 2, F, T), np.float32), np.zeros((b, F, T), np.float32),
                           np.zeros((b, F, T), np.float32))
 
@@ -52,7 +56,7 @@ def play(controller, episodes, library, env_config):
               "action": []}
     try:
         for step in range(episodes[0].max_steps):
-            actions = controller.act(controller_observation(obs, zero))
+            actions = controller.act(controller_observation(obs, zero, uses_separator=controller.uses_separator))
             obs, _, terminated, truncated, _ = env.step(actions)
             record["action"].append(actions)
             for key, value in (("node", obs["node"]), ("heading", obs["heading"]), ("xy", obs["pose"][:, :2])):
@@ -212,7 +216,7 @@ def test_doa_steps_toward_the_target_rendered_in_a_scene(small_library, env_conf
     zero = no_separation(len(episodes))
     facing = {}
     for _ in range(4):
-        actions = controller.act(controller_observation(dict(obs, audio=info["target_binaural"]), zero))
+        actions = controller.act(controller_observation(dict(obs, audio=info["target_binaural"]), zero, uses_separator=False))
         for slot in np.flatnonzero(actions == MOVE_FORWARD):
             d = grids[slot].positions[episodes[slot].target_node] - grids[slot].positions[obs["node"][slot]]
             facing.setdefault(slot, np.cos(np.arctan2(d[1], d[0]) - obs["pose"][slot, 2]) > np.cos(np.pi / 4) - 1e-6)

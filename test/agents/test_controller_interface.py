@@ -53,7 +53,7 @@ def test_a_controller_gets_no_ground_truth_field(small_episodes, folder_library,
     given = {f.name for f in dataclasses.fields(ControllerObservation)} | {f.name for f in dataclasses.fields(EpisodeStart)}
     assert not given & truth, given & truth
     # The rollout's conversion reads nothing but the observation, and only keys the env observes.
-    assert list(inspect.signature(controller_observation).parameters) == ["obs", "separation"]
+    assert list(inspect.signature(controller_observation).parameters) == ["obs", "separation", "uses_separator"]
     recording = Recording(obs)
     zero = np.zeros((2, 2, 512, 32), np.float32)
     controller_observation(recording, SeparationStep(zero, zero[:, 0], zero[:, 0]))

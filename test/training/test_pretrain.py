@@ -116,6 +116,33 @@ def test_a_state_of_another_configuration_is_refused(config, folder_library, tmp
     assert result.metadata["resumed_from"] is None and not state_path(out).exists()
 
 
+def test_cosine_schedule_runs_from_lr_to_final_lr_and_fixes_the_epoch_count(config):
+    assert config.stage1_lr(0) == config.stage1_lr(10**6) == config.lr  # constant by default
+    annealed = dataclasses.replace(config, final_lr=1e-4)
+    last = annealed.epochs * annealed.batches_per_epoch - 1
+    rates = [annealed.stage1_lr(i) for i in range(last + 1)]
+    assert rates[0] == pytest.approx(annealed.lr) and rates[-1] == pytest.approx(1e-4)
+    assert all(a >= b for a, b in zip(rates, rates[1:]))
+    # The schedule depends on the epoch count, so a resumed run must keep it.
+    assert "epochs" not in config.result_fields() and "epochs" in annealed.result_fields()
+    with pytest.raises(ConfigError, match="final_lr"):
+        dataclasses.replace(config, final_lr=1.0)
+
+
+def test_init_from_starts_stage_1_at_a_checkpoints_weights(trained, config, folder_library, tmp_path):
+    tuned = dataclasses.replace(config, init_from=str(trained.checkpoint), final_lr=1e-4, epochs=1,
+                                refiner_epochs=1)
+    result = pretrain(tuned, folder_library, out=tmp_path / "tuned.pt", progress=False, on_epoch=lambda *_: None)
+    about = result.metadata["initialised_from"]
+    assert about["path"] == str(trained.checkpoint) and about["command"] == "test" and len(about["sha256"]) == 16
+    # After one epoch it is still about where the checkpoint was, far from fresh weights' first epoch.
+    first = result.metadata["history"]["stage1"][0]["val_monaural_l1"]
+    assert first < trained.metadata["history"]["stage1"][0]["val_monaural_l1"]
+    with pytest.raises(CheckpointError):
+        pretrain(dataclasses.replace(tuned, init_from=str(tmp_path / "missing.pt")), folder_library,
+                 out=tmp_path / "other.pt", progress=False)
+
+
 def test_refiner_memory_resets_per_sequence(trained):
     separator = trained.separator.eval()
     torch.manual_seed(0)
