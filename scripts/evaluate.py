@@ -29,7 +29,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: idle OpenMP
 
 import torch  # noqa: E402
 
-from m2h_ros.agents.registry import CONTROLLER_NAMES, GREEDY, LEARNED, TRAINING_FREE, controller_class, make_controller  # noqa: E402
+from m2h_ros.agents.registry import (CONTROLLER_NAMES, GREEDY, LEARNED, SUPERVISED, TRAINING_FREE,  # noqa: E402
+                                     controller_class, make_controller)
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differences, paired_table,  # noqa: E402
                                   summarize, write_results)
@@ -56,7 +57,7 @@ def names(text: str, *, allowed: Sequence[str], what: str) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controllers", default=",".join((*TRAINING_FREE, *LEARNED)),
+    parser.add_argument("--controllers", default=",".join((*TRAINING_FREE, *LEARNED, *SUPERVISED)),
                         help="comma-separated controller names (default: all; --list shows them); a learned "
                              "one with ':greedy' takes the most likely action instead of sampling")
     parser.add_argument("--task", choices=TASKS, default="near_target")
@@ -70,6 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--policy-checkpoint", default="",
                         help="policy file (a directory for move2hear) for the learned controllers; "
                              "default: the shipped ones")
+    parser.add_argument("--locator-checkpoint", default="",
+                        help="sound locator of gan_et_al (default: the shipped one)")
     parser.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output directory")
     parser.add_argument("--threads", type=int, default=2,
                         help="torch and rendering threads (2 suits 16 slots on 2 cores)")
@@ -95,7 +98,8 @@ def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence
     results: list[EpisodeResult] = []
     slots = min(args.slots, len(episodes))
     for name in controllers:
-        checkpoint = "" if name in TRAINING_FREE else args.policy_checkpoint
+        checkpoint = ("" if name in TRAINING_FREE else args.locator_checkpoint if name in SUPERVISED
+                      else args.policy_checkpoint)
         controller = make_controller(name, slots, seed=args.seed, checkpoint=checkpoint)
         runner = SeparatorRunner(loaded, slots)
         results += evaluate_controller(controller, runner, episodes, library, env_config=env_config,
@@ -106,7 +110,7 @@ def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.list:
-        for name in (*TRAINING_FREE, *LEARNED):
+        for name in (*TRAINING_FREE, *LEARNED, *SUPERVISED):
             print(f"{name:<18} {controller_class(name).summary}")
         print(f"(a learned controller as <name>{GREEDY} takes the most likely action instead of sampling)")
         return 0

@@ -12,7 +12,8 @@
 * ``av_navigator`` (Sec. 5, after Chen et al. 2020): PPO on the mixed binaural spectrogram + the
   target-class plane and RGB, with the navigation reward (+ Stop).
 
-Gan et al. (supervised location / Stop predictors, a depth occupancy map and a planner) is not here yet.
+Gan et al. (supervised location / Stop predictors, a depth occupancy map and a planner) is in
+``m2h_ros.agents.gan``: it has no policy to sample.
 
 Checkpoints: ``checkpoint`` names a policy file (``policy.pt`` of a training run); empty means the
 shipped one in ``m2h_ros/models/default/policy_<kind>.pt``. For ``move2hear`` it names a directory

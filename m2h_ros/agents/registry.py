@@ -25,15 +25,20 @@ LEARNED = {
     "novelty": "m2h_ros.agents.learned:Novelty",
     "av_navigator": "m2h_ros.agents.learned:AVNavigator",
 }
+# name -> "module:Class" of the controllers built on supervised models (m2h_ros/agents/gan.py); they
+# take ``checkpoint`` (the model's) but have no action distribution to sample or be greedy with.
+SUPERVISED = {
+    "gan_et_al": "m2h_ros.agents.gan:GanEtAl",
+}
 # "<learned name>:greedy" takes each step's most likely action instead of sampling (the original
 # evaluates sampled actions); results are labelled with the whole spec.
 GREEDY = ":greedy"
-CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED, *(name + GREEDY for name in LEARNED))
+CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED, *SUPERVISED, *(name + GREEDY for name in LEARNED))
 
 
 def controller_class(name: str) -> type[Controller]:
     base = name.removesuffix(GREEDY)
-    target = TRAINING_FREE.get(name) or (LEARNED.get(base) if base in LEARNED else None)
+    target = TRAINING_FREE.get(name) or SUPERVISED.get(name) or (LEARNED.get(base) if base in LEARNED else None)
     if target is None:
         raise ConfigError(f"unknown controller {name!r}; available: {', '.join(CONTROLLER_NAMES)}")
     module, cls = target.split(":")
@@ -42,13 +47,15 @@ def controller_class(name: str) -> type[Controller]:
 
 def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str = "", **options) -> Controller:
     """A controller of ``n_slots`` slots; ``checkpoint`` and ``options`` (e.g. move2hear's
-    ``switch_step``) are for learned controllers only."""
+    ``switch_step``, gan_et_al's ``replan_every``) are for learned and supervised controllers only."""
     cls = controller_class(name)
     if name in TRAINING_FREE:
         if checkpoint or options:
             raise ConfigError(f"controller {name!r} needs no training; it takes no checkpoint or options")
         return cls(n_slots, seed=seed)
+    if name not in SUPERVISED:
+        options = dict(options, greedy=name.endswith(GREEDY))
     try:
-        return cls(n_slots, seed=seed, checkpoint=checkpoint, greedy=name.endswith(GREEDY), **options)
+        return cls(n_slots, seed=seed, checkpoint=checkpoint, **options)
     except TypeError as error:  # an option the class does not take
         raise ConfigError(f"controller {name!r}: {error}") from error
