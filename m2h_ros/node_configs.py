@@ -68,10 +68,11 @@ class SeparatorNodeConfig(Config):
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
-    policy: str = setting("doa", "which controller chooses the actions (default: the best "
-                          "training-free baseline in docs/results/baselines_near_target until learned "
-                          "policies are shipped)", choices=CONTROLLER_NAMES)
-    checkpoint: str = setting("", "policy checkpoint for learned controllers; empty: shipped default")
+    policy: str = setting("doa", "which controller chooses the actions (default: the best near-target "
+                          "controller measured, docs/results/baselines_near_target; the shipped pi^Q does "
+                          "not beat it)", choices=CONTROLLER_NAMES)
+    checkpoint: str = setting("", "checkpoint of a learned policy or of gan_et_al's sound locator; empty: "
+                              "the shipped one")
     seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
 
 

@@ -65,6 +65,7 @@ from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
+from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.separator_data import (  # noqa: E402
     BatchSource,
     SeparatorBatch,
@@ -292,12 +293,7 @@ def _machine() -> dict[str, Any]:
 
 def plot_losses(path: Path, history: dict[str, list[dict[str, float]]]) -> Path:
     """Loss curves of both stages (matplotlib Agg) -> PNG."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (left, right) = two_panels((11, 4))
     stage1, stage2 = history["stage1"], history["stage2"]
     epochs = [h["epoch"] for h in stage1]
     for key, style in (("train_binaural_l1", "C0--"), ("val_binaural_l1", "C0-"),
@@ -310,13 +306,7 @@ def plot_losses(path: Path, history: dict[str, list[dict[str, float]]]) -> Path:
                        ("val_refined_l1_last", "C3-"), ("val_unrefined_l1", "k:")):
         right.plot(epochs, [h[key] for h in stage2], style, marker="o", ms=3, label=key.replace("_", " "))
     right.set(title="stage 2: f^R (val: unheard sounds)", xlabel="epoch", ylabel="L1 magnitude")
-    for ax in (left, right):
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_panels(fig, (left, right), path)
 
 
 EpochHook = Callable[[str, dict[str, float]], None]

@@ -42,6 +42,7 @@ from m2h_ros.errors import ConfigError  # noqa: E402
 from m2h_ros.models.locator import (DEFAULT_LOCATOR_CHECKPOINT, LocatorConfig, SoundLocator,  # noqa: E402
                                     locator_input, save_locator)
 from m2h_ros.paths import repo_relative  # noqa: E402
+from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.separator_data import StreamConfig, build_banks  # noqa: E402
 
 _SALT = 0x6C6F63  # separates the locator's draws from other uses of the same seed
@@ -188,12 +189,7 @@ def stop_rule_table(net: SoundLocator, data: LocatorSet) -> list[dict[str, float
 
 
 def plot_curve(path: Path, history: list[dict[str, float]]) -> Path:
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (left, right) = two_panels((10, 3.8))
     epochs = [h["epoch"] for h in history]
     for key, style in (("train_loss", "C0--"), ("val_loss", "C0-"), ("val_stop_loss", "C1-")):
         left.plot(epochs, [h[key] for h in history], style, marker="o", ms=3, label=key.replace("_", " "))
@@ -201,13 +197,7 @@ def plot_curve(path: Path, history: list[dict[str, float]]) -> Path:
     right.plot(epochs, [h["val_median_distance_m"] for h in history], "k:", label="val median distance (m)")
     left.set(title="sound locator", xlabel="epoch", ylabel="loss")
     right.set(title="validation (val scenes, unheard sounds)", xlabel="epoch", ylabel="metres")
-    for ax in (left, right):
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_panels(fig, (left, right), path)
 
 
 def train_locator(config: LocatorTrainConfig, library: SoundLibrary, *, out: Path, command: str | None = None,

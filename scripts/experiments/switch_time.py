@@ -2,12 +2,12 @@
 """Experiment 3 of the supplementary material: the composite policy's switch time T^N (far-target).
 
     python scripts/experiments/switch_time.py [--switch-steps 0,20,40,60,80,100] [--sound-split heard,unheard]
-        [--count 200] [--workers 2] [--address ADDR] [--out docs/results/switch_time]
+        [--scene-split test] [--count 200] [--workers 2] [--address ADDR] [--out docs/results/switch_time]
 
 Move2Hear on far-target test episodes navigates with pi^N until step T^N, then improves the estimate
 with pi^Q (``move2hear``'s ``switch_step``); 100 is "no switch" (pi^N throughout; the episode has 100
 steps), 0 is pi^Q throughout. Pick T^N on the validation split for the shipped default (80, the
-original's). The paper's finding (Supp. Sec. 4): switching late enough to reach the target, early
+original's): ``--scene-split val``. The paper's finding (Supp. Sec. 4): switching late enough to reach the target, early
 enough to refine there, beats both extremes. Needs the shipped pi^Q and pi^N (docs/policies.md).
 """
 
@@ -22,11 +22,18 @@ from m2h_ros.experiments.sweep import Condition  # noqa: E402
 
 def conditions(args):
     steps = [int(v) for v in args.switch_steps.split(",")]
-    return [Condition(label=f"T^N = {t}", x=t, controller={"switch_step": t}) for t in steps]
+    return [Condition(label=f"T^N = {t}", x=t, controller={"switch_step": t}, episodes={"scene_split": args.scene_split})
+            for t in steps]
+
+
+def arguments(parser):
+    parser.add_argument("--switch-steps", default="0,20,40,60,80,100")
+    parser.add_argument("--scene-split", default="test", choices=("val", "test"),
+                        help="val to choose T^N, test to report it")
 
 
 if __name__ == "__main__":
     sys.exit(sweep_main(None, script=__file__, doc=__doc__, conditions=conditions, controllers="move2hear",
                         task="far_target", title="Far-target final-step SI-SDR vs the switch step T^N",
                         xlabel="switch step T^N (pi^N before, pi^Q after)",
-                        add_arguments=lambda p: p.add_argument("--switch-steps", default="0,20,40,60,80,100")))
+                        add_arguments=arguments))
