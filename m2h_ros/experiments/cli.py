@@ -18,13 +18,14 @@ from m2h_ros.paths import REPO_DIR, repo_relative
 def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str, xlabel: str,
                conditions: Callable[[argparse.Namespace], list[Condition]],
                add_arguments: Callable[[argparse.ArgumentParser], None] = lambda parser: None,
-               controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target") -> int:
+               controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target",
+               sound_split: str = "heard,unheard") -> int:
     """Parse, run the sweep, write ``docs/results/<script stem>/`` (or --out); 2 on a clear error.
     ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository)."""
     script = repo_relative(script)
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--task", default=task, help="near_target, far_target or both comma-separated")
-    parser.add_argument("--sound-split", default="heard,unheard")
+    parser.add_argument("--sound-split", default=sound_split)
     parser.add_argument("--controllers", default=controllers, help="comma-separated registry names")
     parser.add_argument("--count", type=int, default=200, help="test episodes per task x split x condition")
     parser.add_argument("--chunk", type=int, default=50, help="episodes per Ray job")
