@@ -7,7 +7,7 @@ in its metadata, so ``ros/params.py`` can declare it as a ROS parameter and the 
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, get_type_hints
 
@@ -23,6 +23,14 @@ def reject_unknown_fields(cls: type, values: Mapping[str, Any]) -> None:
     unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
     if unknown:
         raise ConfigError(f"{cls.__name__} has no field(s) {sorted(unknown)}")
+
+
+def check_int_fields(config: Any, minimums: Sequence[tuple[str, int]]) -> None:
+    """ConfigError unless each named field of ``config`` is an int (not a bool) >= its minimum."""
+    for name, low in minimums:
+        value = getattr(config, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"{type(config).__name__}.{name} must be an int >= {low}, got {value!r}")
 
 
 def setting(default: Any, description: str, *, min: float | None = None, max: float | None = None,

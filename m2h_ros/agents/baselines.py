@@ -36,7 +36,7 @@ def hold_in_place(count: np.ndarray, far: np.ndarray) -> np.ndarray:
     return np.where(far, np.where(np.asarray(count) % 2 == 0, TURN_LEFT, TURN_RIGHT), STOP).astype(np.int64)
 
 
-class _Baseline(Controller):
+class TaskAware(Controller):
     """Keeps each slot's task (whether Stop would end its episode). No baseline reads the separator."""
 
     uses_separator = False
@@ -50,7 +50,7 @@ class _Baseline(Controller):
         self.far[slot] = start.task == "far_target"
 
 
-class StandInPlace(_Baseline):
+class StandInPlace(TaskAware):
     """Stand In-Place (paper Sec. 5): the passive reference, the separator hears the whole episode
     from the start pose. Stop in near-target (a no-op; the original's "pause"); in far-target it turns
     left and right in place (:func:`hold_in_place`), which stays on the start node and ends at the start
@@ -63,7 +63,7 @@ class StandInPlace(_Baseline):
         return hold_in_place(obs.step, self.far)
 
 
-class RotateInPlace(_Baseline):
+class RotateInPlace(TaskAware):
     """Rotate In-Place (paper Sec. 5): stays on the start node and keeps turning, so the separator
     hears the scene from all four headings in turn. Always TurnLeft (the direction is arbitrary; the
     original code does not say); after a multiple of 4 steps (20 and 100) it faces the start heading."""
@@ -75,7 +75,7 @@ class RotateInPlace(_Baseline):
         return np.full(obs.n_slots, TURN_LEFT, np.int64)
 
 
-class RandomActions(_Baseline):
+class RandomActions(TaskAware):
     """Random (paper Sec. 5): a uniform draw from MoveForward / TurnLeft / TurnRight at every step (the
     original's possible actions; never Stop), from the slot's generator (seeded by the controller's
     and the episode's seeds, so an episode's actions do not depend on its slot)."""
@@ -87,7 +87,7 @@ class RandomActions(_Baseline):
         return np.array([MOTIONS[self.rngs[slot].integers(len(MOTIONS))] for slot in range(obs.n_slots)])
 
 
-class MoveForward(_Baseline):
+class MoveForward(TaskAware):
     """Move Forward (paper Sec. 5): MoveForward unless blocked, then TurnRight. Blocked is what a
     robot with a bumper but no map knows: its odometry did not change over its last MoveForward. So
     it spends one step against each obstacle; it reads no camera, and runs with the camera off."""
@@ -116,7 +116,7 @@ class MoveForward(_Baseline):
 DEFAULT_PROXIMITY_RADIUS = EpisodeConfig().near_radius
 
 
-class ProximityPrior(_Baseline):
+class ProximityPrior(TaskAware):
     """Proximity Prior (paper Sec. 5): random actions as :class:`RandomActions`, but a MoveForward that
     would end more than ``radius`` metres (straight line) from the start pose becomes a random turn.
     "Would end" is predicted from the odometry pose and the robot's 1 m stride, so the robot never
@@ -154,7 +154,7 @@ class ProximityPrior(_Baseline):
 FIRST_LISTEN, SECOND_LISTEN, TURN, HOLD = 0, 1, 2, 3
 
 
-class DirectionOfArrival(_Baseline):
+class DirectionOfArrival(TaskAware):
     """DoA (paper Sec. 5, supplementary Sec. 10): turn to face the target's direction of arrival, move
     one step toward it, then stay (:func:`hold_in_place`).
 

@@ -31,22 +31,19 @@ from typing import ClassVar
 import numpy as np
 import torch
 
-from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
+from m2h_ros.agents.base import ControllerObservation, EpisodeStart
+from m2h_ros.agents.baselines import TaskAware
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
-from m2h_ros.core.world.camera import CameraConfig
+from m2h_ros.core.world.camera import CameraConfig, pixel_slopes
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT
-from m2h_ros.core.world.navgrid import HEADING_STEPS, N_HEADINGS
+from m2h_ros.core.world.navgrid import HEADING_STEPS, N_HEADINGS, heading_index
 from m2h_ros.errors import ConfigError
-from m2h_ros.models.locator import DEFAULT_LOCATOR_CHECKPOINT, load_locator, locator_input
+from m2h_ros.models.locator import DEFAULT_LOCATOR_CHECKPOINT, load_locator, locator_input, map_position
 
 OBSTACLE_Z = (0.1, 1.9)  # metres above the floor: what the robot would hit
 WALL_BAND = 0.12  # metres either side of a cell boundary that count as "on the line between cells"
 MIN_POINTS = 3  # obstacle points that block a cell or a move
 PIXEL_STRIDE = 4  # every 4th row and column of the depth image
-
-
-def heading_of(yaw: float) -> int:
-    return int(np.round(yaw / (np.pi / 2))) % N_HEADINGS
 
 
 @dataclass
@@ -58,13 +55,8 @@ class OccupancyMap:
     blocked_moves: set[tuple[int, int, int]] = field(default_factory=set)
 
     def __post_init__(self) -> None:
-        cam = self.camera
-        rows = np.arange(0, cam.height, PIXEL_STRIDE) + 0.5
-        cols = np.arange(0, cam.width, PIXEL_STRIDE) + 0.5
-        self._rows = slice(0, cam.height, PIXEL_STRIDE)
-        self._cols = slice(0, cam.width, PIXEL_STRIDE)
-        self._up = ((cam.height / 2 - rows) / cam.focal)[:, None]  # per unit of optical depth
-        self._right = ((cols - cam.width / 2) / cam.focal)[None, :]
+        right, up = pixel_slopes(self.camera)
+        self._right, self._up = right[None, ::PIXEL_STRIDE], up[::PIXEL_STRIDE, None]
 
     def block_move(self, cell: tuple[int, int], heading: int) -> None:
         self.blocked_moves.add((*cell, heading))
@@ -73,7 +65,7 @@ class OccupancyMap:
 
     def add_depth(self, depth: np.ndarray, pose: np.ndarray) -> None:
         """Obstacles seen in one depth image (H, W, metres along the optical axis) from ``pose``."""
-        d = np.asarray(depth, np.float64)[self._rows, self._cols]
+        d = np.asarray(depth, np.float64)[::PIXEL_STRIDE, ::PIXEL_STRIDE]
         z = self.camera.eye_height + self._up * d
         seen = (d < self.camera.max_depth - 1e-3) & (z > OBSTACLE_Z[0]) & (z < OBSTACLE_Z[1])
         if not seen.any():
@@ -135,11 +127,10 @@ def move_toward(heading: int, wanted: int) -> int:
     return TURN_LEFT if wanted == (heading + 1) % N_HEADINGS else TURN_RIGHT
 
 
-class GanEtAl(Controller):
+class GanEtAl(TaskAware):
     name = "gan_et_al"
     summary = "sound locator + Stop predictor, depth occupancy map, BFS planner (paper Sec. 5, Gan et al. 2020)"
     uses_camera: ClassVar[bool] = True  # depth
-    uses_separator: ClassVar[bool] = False
 
     def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", replan_every: int = 20,
                  stop_threshold: float = 0.7, stop_patience: int = 2, camera: CameraConfig = CameraConfig()) -> None:
@@ -177,22 +168,20 @@ class GanEtAl(Controller):
             raise ConfigError(f"{self.name} needs the depth camera: use EnvConfig(camera=True)")
         out = self.locator.net(locator_input(obs.audio, self.target_class, bands=self.locator.config.bands,
                                              config=self.locator.stft))
-        offsets, stop_p = out.offset.numpy().astype(np.float64), torch.sigmoid(out.stop_logit).numpy()
+        poses = obs.pose.astype(np.float64)
+        heard = map_position(out.offset.numpy(), poses)  # where each slot's step says the target is
+        confident = torch.sigmoid(out.stop_logit).numpy() > self.stop_threshold
+        self.confident = np.where(confident, self.confident + 1, 0)
         actions = np.empty(self.n_slots, np.int64)
         for slot in range(self.n_slots):
-            pose = obs.pose[slot].astype(np.float64)
-            cell, heading = (int(np.floor(pose[0])), int(np.floor(pose[1]))), heading_of(pose[2])
+            pose = poses[slot]
+            cell, heading = (int(np.floor(pose[0])), int(np.floor(pose[1]))), heading_index(pose[2])
             occupancy = self.maps[slot]
-            if self.last[slot] is not None and self.last[slot] == (cell, heading) and self.moved_forward[slot]:
+            if self.last[slot] == (cell, heading) and self.moved_forward[slot]:
                 occupancy.block_move(cell, heading)  # the MoveForward went nowhere
             occupancy.add_depth(obs.depth[slot], pose)
-            yaw = pose[2]
-            goal = pose[:2] + offsets[slot, 0] * np.array([np.cos(yaw), np.sin(yaw)]) \
-                + offsets[slot, 1] * np.array([-np.sin(yaw), np.cos(yaw)])
-            self.heard[slot].append(goal)
-            far = self.starts[slot].task == "far_target"
-            self.confident[slot] = self.confident[slot] + 1 if stop_p[slot] > self.stop_threshold else 0
-            if far and self.confident[slot] >= self.stop_patience:
+            self.heard[slot].append(heard[slot])
+            if self.far[slot] and self.confident[slot] >= self.stop_patience:
                 actions[slot] = STOP
             else:
                 actions[slot] = self._navigate(slot, int(obs.step[slot]), cell, heading)

@@ -78,6 +78,23 @@ def locator_input(audio: np.ndarray, class_index: np.ndarray, *, bands: int,
     return torch.from_numpy(np.concatenate([pooled, plane], axis=1).astype(np.float32))
 
 
+def relative_offset(target_xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """(B, 2) map positions and (B, 3) poses (x, y, yaw) -> (B, 2) (forward, left) in the robot frame:
+    the locator's ``offset`` label."""
+    d = np.asarray(target_xy, np.float64) - pose[:, :2]
+    cos, sin = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    return np.stack([d[:, 0] * cos + d[:, 1] * sin, -d[:, 0] * sin + d[:, 1] * cos], axis=1).astype(np.float32)
+
+
+def map_position(offset: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`relative_offset`: (B, 2) (forward, left) offsets from (B, 3) poses -> (B, 2)
+    map positions."""
+    offset, pose = np.asarray(offset, np.float64), np.asarray(pose, np.float64)
+    cos, sin = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    return pose[:, :2] + np.stack([offset[:, 0] * cos - offset[:, 1] * sin,
+                                   offset[:, 0] * sin + offset[:, 1] * cos], axis=1)
+
+
 class LocatorOutput(NamedTuple):
     offset: torch.Tensor  # (B, 2) metres, (forward, left) in the robot's frame
     stop_logit: torch.Tensor  # (B,)

@@ -68,6 +68,7 @@ from m2h_ros.core.audio.stft import stft, to_slices  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
+from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_inputs, save_policy  # noqa: E402
@@ -140,11 +141,8 @@ class PPOConfig:
             raise ConfigError("PPOConfig.episodes must be an EpisodeConfig or None")
         if not isinstance(self.env, EnvConfig):
             raise ConfigError("PPOConfig.env must be an EnvConfig")
-        for name, low in (("n_envs", 1), ("n_steps", 1), ("updates", 1), ("ppo_epochs", 1), ("refiner_epochs", 1), ("n_minibatches", 1),
-                          ("seed", 0), ("threads", 1), ("checkpoint_every", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"PPOConfig.{name}={value!r} must be an int >= {low}")
+        check_int_fields(self, (("n_envs", 1), ("n_steps", 1), ("updates", 1), ("ppo_epochs", 1), ("refiner_epochs", 1),
+                                ("n_minibatches", 1), ("seed", 0), ("threads", 1), ("checkpoint_every", 1)))
         if self.n_envs % self.n_minibatches:
             raise ConfigError(f"PPOConfig.n_minibatches={self.n_minibatches} must divide n_envs={self.n_envs}")
         for name in ("clip", "gamma", "gae_lambda", "lr", "refiner_lr", "adam_eps"):

@@ -61,6 +61,7 @@ from torch.utils.data import DataLoader  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
+from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
@@ -120,11 +121,8 @@ class PretrainConfig:
     def __post_init__(self) -> None:
         if not isinstance(self.model, SeparatorConfig):
             raise ConfigError(f"PretrainConfig.model must be a SeparatorConfig, got {type(self.model).__name__}")
-        for name, low in (("seed", 0), ("epochs", 1), ("batches_per_epoch", 1), ("refiner_epochs", 1),
-                          ("refiner_batches_per_epoch", 1), ("val_batches", 1), ("threads", 1), ("workers", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"PretrainConfig.{name} must be an int >= {low}, got {value!r}")
+        check_int_fields(self, (("seed", 0), ("epochs", 1), ("batches_per_epoch", 1), ("refiner_epochs", 1),
+                                ("refiner_batches_per_epoch", 1), ("val_batches", 1), ("threads", 1), ("workers", 0)))
         if not (isinstance(self.lr, float) and 0 < self.lr < 1):
             raise ConfigError(f"PretrainConfig.lr must be a float in (0, 1), got {self.lr!r}")
         if self.final_lr is not None and not (isinstance(self.final_lr, float) and 0 < self.final_lr <= self.lr):

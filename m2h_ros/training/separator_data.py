@@ -56,6 +56,7 @@ from m2h_ros.core.world.episodes import (
 from m2h_ros.core.world.navgrid import NavGrid, turn_left, turn_right
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.scene import Scene, load_split
+from m2h_ros.config import check_int_fields
 from m2h_ros.errors import ConfigError
 
 # The random policy: forward half of the time so the agent travels, turns otherwise (never Stop,
@@ -103,10 +104,7 @@ class StreamConfig:
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
                 raise ConfigError(f"StreamConfig.{name} must be None or an int >= 1, got {value!r}")
-        for name, low in (("batch_size", 2), ("steps", 1), ("max_walk", 0), ("seed", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"StreamConfig.{name} must be an int >= {low}, got {value!r}")
+        check_int_fields(self, (("batch_size", 2), ("steps", 1), ("max_walk", 0), ("seed", 0)))
         if len({e.n_distractors for e in self.episodes}) != 1:
             raise ConfigError("StreamConfig.episodes must all have the same n_distractors (one BatchEnv holds them)")
         too_short = [e for e in self.episodes if e.steps < self.steps - 1]

@@ -38,9 +38,10 @@ from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, draw_episode  # noqa: E402
 from m2h_ros.core.world.scene import load_split  # noqa: E402
+from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import ConfigError  # noqa: E402
-from m2h_ros.models.locator import (DEFAULT_LOCATOR_CHECKPOINT, LocatorConfig, SoundLocator,  # noqa: E402
-                                    locator_input, save_locator)
+from m2h_ros.models.locator import (DEFAULT_LOCATOR_CHECKPOINT, LocatorConfig, LocatorOutput,  # noqa: E402
+                                    SoundLocator, locator_input, relative_offset, save_locator)
 from m2h_ros.paths import repo_relative  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.separator_data import StreamConfig, build_banks  # noqa: E402
@@ -77,11 +78,8 @@ class LocatorTrainConfig:
     threads: int = 2
 
     def __post_init__(self) -> None:
-        for name, low in (("samples", 1), ("val_samples", 1), ("epochs", 1), ("batch_size", 1), ("seed", 0),
-                          ("threads", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"LocatorTrainConfig.{name}={value!r} must be an int >= {low}")
+        check_int_fields(self, (("samples", 1), ("val_samples", 1), ("epochs", 1), ("batch_size", 1), ("seed", 0),
+                                ("threads", 1)))
         if not 0.0 <= self.at_target_fraction < 1.0:
             raise ConfigError(f"LocatorTrainConfig.at_target_fraction={self.at_target_fraction!r} must be in [0, 1)")
         if not (isinstance(self.lr, float) and 0 < self.lr < 1) or not self.stop_weight >= 0:
@@ -95,13 +93,6 @@ class LocatorSet:
     inputs: torch.Tensor  # (n, 3, bands, T) float16
     offsets: torch.Tensor  # (n, 2) float32 metres, (forward, left)
     at_target: torch.Tensor  # (n,) float32 0/1
-
-
-def relative_offset(target_xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """(B, 2) world positions and (B, 3) poses (x, y, yaw) -> (B, 2) (forward, left) in the robot frame."""
-    d = np.asarray(target_xy, np.float64) - pose[:, :2]
-    cos, sin = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-    return np.stack([d[:, 0] * cos + d[:, 1] * sin, -d[:, 0] * sin + d[:, 1] * cos], axis=1).astype(np.float32)
 
 
 def draw_set(config: LocatorTrainConfig, template: EpisodeConfig, library: SoundLibrary, *, count: int,
@@ -139,9 +130,8 @@ def draw_set(config: LocatorTrainConfig, template: EpisodeConfig, library: Sound
     return LocatorSet(torch.cat(inputs), torch.cat(offsets), torch.cat(at_target))
 
 
-def _losses(net: SoundLocator, inputs: torch.Tensor, offsets: torch.Tensor, at_target: torch.Tensor,
+def _losses(out: LocatorOutput, offsets: torch.Tensor, at_target: torch.Tensor,
             stop_weight: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    out = net(inputs.float())
     offset_loss = F.smooth_l1_loss(out.offset, offsets)
     stop_loss = F.binary_cross_entropy_with_logits(out.stop_logit, at_target)
     return offset_loss + stop_weight * stop_loss, offset_loss, stop_loss
@@ -153,7 +143,7 @@ def evaluate(net: SoundLocator, data: LocatorSet, *, stop_weight: float = 1.0) -
     target's node) and the Stop head's accuracy at and away from the target."""
     net.eval()
     out = net(data.inputs.float())
-    loss, offset_loss, stop_loss = _losses(net, data.inputs, data.offsets, data.at_target, stop_weight)
+    loss, offset_loss, stop_loss = _losses(out, data.offsets, data.at_target, stop_weight)
     error = (out.offset - data.offsets).norm(dim=1)
     away = data.at_target < 0.5
     bearing = torch.atan2(out.offset[:, 1], out.offset[:, 0]) - torch.atan2(data.offsets[:, 1], data.offsets[:, 0])
@@ -225,7 +215,8 @@ def train_locator(config: LocatorTrainConfig, library: SoundLibrary, *, out: Pat
                    unit="batch", leave=False, disable=not progress)
         for first in bar:
             rows = order[first:first + config.batch_size]
-            loss, _, _ = _losses(net, train.inputs[rows], train.offsets[rows], train.at_target[rows], config.stop_weight)
+            loss, _, _ = _losses(net(train.inputs[rows].float()), train.offsets[rows], train.at_target[rows],
+                                 config.stop_weight)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()

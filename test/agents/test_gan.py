@@ -8,17 +8,16 @@ import pytest
 import torch
 
 from m2h_ros.agents.base import EpisodeStart
-from m2h_ros.agents.gan import GanEtAl, OccupancyMap, heading_of
+from m2h_ros.agents.gan import GanEtAl, OccupancyMap
 from m2h_ros.agents.registry import make_controller
 from m2h_ros.agents.rollout import controller_observation
 from m2h_ros.core.world.camera import CameraConfig, SceneRenderer
 from m2h_ros.core.world.env import BatchEnv
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
-from m2h_ros.core.world.navgrid import HEADING_STEPS
+from m2h_ros.core.world.navgrid import HEADING_STEPS, heading_index
 from m2h_ros.errors import CheckpointError
-from m2h_ros.models.locator import LocatorOutput, SoundLocator, load_locator, save_locator
+from m2h_ros.models.locator import LocatorOutput, SoundLocator, load_locator, relative_offset, save_locator
 from m2h_ros.models.runner import SeparationStep
-from m2h_ros.training.train_locator import relative_offset
 
 F, T = 512, 32
 
@@ -60,7 +59,7 @@ def test_the_planner_goes_around_a_wall():
     assert occupancy.first_move((0, 0), (3, 0)) == 1  # up (+y) toward the opening, not into the wall
     occupancy.blocked_cells.add((0, 1))
     assert occupancy.first_move((0, 0), (3, 0)) == 3  # that way is shut too: down and around
-    assert heading_of(np.pi / 2 + 0.01) == 1 and heading_of(-np.pi / 2) == 3
+    assert heading_index(np.pi / 2 + 0.01) == 1 and heading_index(-np.pi / 2) == 3
 
 
 class TrueLocator(torch.nn.Module):

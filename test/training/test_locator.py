@@ -7,8 +7,8 @@ import torch
 
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.errors import CheckpointError, ConfigError
-from m2h_ros.models.locator import LocatorConfig, load_locator
-from m2h_ros.training.train_locator import LocatorTrainConfig, draw_set, relative_offset, train_locator
+from m2h_ros.models.locator import LocatorConfig, load_locator, relative_offset
+from m2h_ros.training.train_locator import LocatorTrainConfig, draw_set, train_locator
 
 SMALL = dict(task="far_target", scene_preset="small", min_source_distance=3.0, far_min_distance=3.0)
 TINY = LocatorConfig(bands=16, channels=(8, 8), hidden=16)

@@ -48,6 +48,14 @@ class CameraConfig:
         return (self.width / 2) / np.tan(np.radians(self.hfov_deg) / 2)
 
 
+def pixel_slopes(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Per column, its offset to the right of the optical axis, and per row, its height above it,
+    both per unit of optical depth (pixel centres): what renders a view and what back-projects one."""
+    f = config.focal
+    return ((np.arange(config.width) + 0.5 - config.width / 2) / f,
+            (config.height / 2 - (np.arange(config.height) + 0.5)) / f)
+
+
 class SceneRenderer:
     """Renders views of one scene at arbitrary poses; geometry arrays are built once."""
 
@@ -81,9 +89,7 @@ class SceneRenderer:
         self._palette = np.vstack([colors, 0.82 * colors, floor, 0.9 * floor, 0.25 * colors + 0.69,
                                    OBSTACLE_COLOR, np.multiply(OBSTACLE_COLOR, 1.4)]).astype(np.float32)
         # Pixel geometry: column offsets (right of the axis) and row slopes (up), in units of focal.
-        f = config.focal
-        self._col_offset = (np.arange(config.width) + 0.5 - config.width / 2) / f
-        self._row_slope = (config.height / 2 - (np.arange(config.height) + 0.5)) / f
+        self._col_offset, self._row_slope = pixel_slopes(config)
 
     def render(self, xy, angle: float) -> tuple[np.ndarray, np.ndarray]:
         """RGB (H, W, 3) uint8 and depth (H, W) float32 metres along the optical axis."""

@@ -23,6 +23,11 @@ def heading_angle(heading: int | np.ndarray) -> float | np.ndarray:
     return np.asarray(heading) * (np.pi / 2)
 
 
+def heading_index(yaw: float) -> int:
+    """The heading index nearest to a facing angle (radians, counter-clockwise from +x)."""
+    return int(np.round(yaw / (np.pi / 2))) % N_HEADINGS
+
+
 def turn_left(heading: int | np.ndarray) -> int | np.ndarray:
     return (heading + 1) % N_HEADINGS
 
