@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from m2h_ros.errors import M2HError
@@ -24,17 +24,20 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     node = None
     code = 0
     try:
+        # Built before the node, so a Ctrl-C right after the node says "ready" cannot land inside
+        # the executor's constructor (that leaves a half-built executor whose __del__ raises).
+        executor = SingleThreadedExecutor()
         node = node_type()
         profile_dir = os.environ.get("M2H_PROFILE_DIR")
         if profile_dir:  # cProfile of the spin (not the start-up), one <node>.prof per process
             profiler = cProfile.Profile(time.process_time)  # CPU, not wall time: idle waits cost nothing
             try:
-                profiler.runcall(rclpy.spin, node)
+                profiler.runcall(rclpy.spin, node, executor)
             finally:
                 Path(profile_dir).mkdir(parents=True, exist_ok=True)
                 profiler.dump_stats(Path(profile_dir) / f"{node.get_name()}.prof")
         else:
-            rclpy.spin(node)
+            rclpy.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException, RunFinished):
         pass
     except M2HError as exc:
