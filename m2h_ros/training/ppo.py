@@ -97,6 +97,7 @@ KINDS = {
 }
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
+SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
 
 
 @dataclass(frozen=True)
@@ -260,6 +261,12 @@ def _sliced(magnitude: np.ndarray, n_slices: int) -> np.ndarray:
     return to_slices(magnitude[:, None], n_slices=n_slices).copy()
 
 
+def _poses(obs: dict, rows: np.ndarray | None = None) -> list[tuple[int, int]]:
+    """(node, heading) of each slot (``rows``): the separator's cache keys (one clip per pose and episode)."""
+    nodes, headings = (obs["node"], obs["heading"]) if rows is None else (obs["node"][rows], obs["heading"][rows])
+    return list(zip(nodes.tolist(), headings.tolist(), strict=True))
+
+
 def _to_tensors(values: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
     return {key: torch.from_numpy(np.ascontiguousarray(value)) for key, value in values.items()}
 
@@ -348,7 +355,9 @@ class PPOTrainer:
         env_config = dataclasses.replace(config.env, seed=config.env.seed + self.rank)
         self.env = BatchEnv(self.episodes, library, n_envs=config.n_envs, config=env_config,
                             rir_cache_dir=rir_cache_dir, threads=config.threads)
-        self.runner = SeparatorRunner(self.loaded, config.n_envs)
+        # Microphone noise makes every observation new: nothing to reuse then.
+        self.runner = SeparatorRunner(self.loaded, config.n_envs,
+                                      pose_cache=0 if config.env.mic_noise > 0 else SEPARATOR_POSE_CACHE)
         self.actions = torch.from_numpy(self.policy_config.env_actions())
         self.generator = torch.Generator().manual_seed(config.seed * 1_000_003 + self.rank)
         self.rng = np.random.default_rng([config.seed, self.rank])
@@ -370,7 +379,8 @@ class PPOTrainer:
         self.visits = np.zeros((n, self.env.max_nodes), np.int64)
         self.visits[np.arange(n), self.obs["node"]] = 1
         self.last_classes = self._classes()
-        self.separation = self.runner.step(self.obs["audio"], self.last_classes, np.ones(n, bool))
+        self.separation = self.runner.step(self.obs["audio"], self.last_classes, np.ones(n, bool),
+                                           keys=_poses(self.obs))
         self.nmse_now = nmse(self.separation.refined, self.target_mag)
         self.final_nmse = np.zeros(n)
 
@@ -420,9 +430,10 @@ class PPOTrainer:
             ended = np.flatnonzero(done)
             classes, final = self._classes(), None
             if len(ended):
-                final = self.runner.step(info["final_observation"]["audio"][ended], self.last_classes[ended],
-                                         np.zeros(len(ended), bool), rows=ended)
-            separation = self.runner.step(obs["audio"], classes, done)
+                final_obs = info["final_observation"]
+                final = self.runner.step(final_obs["audio"][ended], self.last_classes[ended],
+                                         np.zeros(len(ended), bool), rows=ended, keys=_poses(final_obs, ended))
+            separation = self.runner.step(obs["audio"], classes, done, keys=_poses(obs))
             reward = self._reward(obs, info, env_reward, separation, final, ended)
             self.last_classes = classes
             self.times[1] += time.perf_counter() - tick
