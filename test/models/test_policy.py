@@ -107,6 +107,14 @@ def test_area_downsample_averages_blocks():
     rgb[0, 0, 0] = 200
     out = area_downsample(rgb, 2)
     assert out.shape == (1, 3, 2, 2) and out[0, 0, 0, 0] == 125 and out[0, 2, 1, 1] == 0 and out.dtype == torch.uint8
+    rng = np.random.default_rng(0)
+    for shape, size in (((3, 128, 128, 3), 64), ((2, 96, 96, 3), 32), ((2, 64, 128, 3), 32)):
+        rgb = rng.integers(0, 256, shape, np.uint8)
+        image = torch.from_numpy(rgb).permute(0, 3, 1, 2).float()
+        expected = torch.round(torch.nn.functional.avg_pool2d(image, (shape[1] // size, shape[2] // size)))
+        out = area_downsample(rgb, size)
+        assert torch.equal(out, expected.to(torch.uint8)), shape  # bit for bit, incl. 3 x 3 blocks, ties
+        assert out.is_contiguous(memory_format=torch.channels_last)
     with pytest.raises(ConfigError, match="multiple"):
         area_downsample(np.zeros((1, 5, 5, 3), np.uint8), 2)
     with pytest.raises(ConfigError, match="too small"):
