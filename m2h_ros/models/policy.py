@@ -34,7 +34,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, class_channel_value, stft, to_slices
