@@ -73,6 +73,7 @@ from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_inputs, save_policy  # noqa: E402
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
+from m2h_ros.training.allocator import keep_freed_blocks  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 
@@ -339,6 +340,7 @@ class PPOTrainer:
         else:
             self.device = torch.device("cpu")
         torch.set_num_threads(config.threads)
+        keep_freed_blocks()  # the update's large temporaries: reused, not mapped afresh (training/allocator.py)
         torch.manual_seed(config.seed)
         self.policy_config = config.policy_config()
         self.net = PolicyNet(self.policy_config).to(self.device)
