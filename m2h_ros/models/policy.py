@@ -271,7 +271,8 @@ class PolicyNet(nn.Module):
         if self.monaural_encoder is not None:
             parts.append(self.monaural_encoder(inputs.monaural))
         if self.visual_encoder is not None:
-            parts.append(self.visual_encoder(inputs.rgb.float() / 255.0))
+            # A copy divided in place: one 16 MB temporary fewer per update pass than float() / 255.
+            parts.append(self.visual_encoder(inputs.rgb.to(torch.float32, copy=True).div_(255.0)))
         return torch.cat(parts, dim=1)
 
     def _recur(self, features: torch.Tensor, hidden: torch.Tensor, starts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
