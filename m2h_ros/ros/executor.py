@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import inspect
 from contextlib import ExitStack
+from itertools import chain
 
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -43,6 +44,7 @@ class _Entities:
             self.stack.enter_context(waitable)
             events += waitable.get_num_entities().num_events
         self.stack.enter_context(executor.context.handle)
+        self.supported = _supported(nodes)
         self.wait_set = _rclpy.WaitSet(len(self.subscriptions), len(self.guards), len(self.timers), 0,
                                        len(self.services), events, executor.context.handle)
 
@@ -50,11 +52,9 @@ class _Entities:
         self.stack.close()
 
 
-def _supported(executor: StepExecutor) -> bool:
-    """True when every entity and callback of the executor's nodes is one StepExecutor runs itself."""
-    if executor._tasks:
-        return False
-    for node in executor.get_nodes():
+def _supported(nodes) -> bool:
+    """True when every entity and callback of ``nodes`` is one StepExecutor runs itself."""
+    for node in nodes:
         if list(node.clients) or list(node.guards):  # generators: always truthy themselves
             return False
         callbacks = [e.callback for e in (*node.subscriptions, *node.timers, *node.services)]
@@ -71,8 +71,9 @@ class StepExecutor(SingleThreadedExecutor):
         self._entities: _Entities | None = None
 
     def _current_entities(self) -> _Entities:
-        key = tuple(id(e) for n in self.get_nodes()
-                    for e in (*n.subscriptions, *n.timers, *n.services, *n.waitables))
+        key = tuple(map(id, chain.from_iterable(chain(n.subscriptions, n.timers, n.services, n.waitables,
+                                                       n.clients, n.guards)
+                                                 for n in self.get_nodes())))
         if self._entities is None or self._entities.key != key:
             self._release()
             self._entities = _Entities(self, key)
@@ -84,11 +85,10 @@ class StepExecutor(SingleThreadedExecutor):
             self._entities = None
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
-        if not _supported(self):
-            self._release()
+        entities = self._current_entities()
+        if self._tasks or not entities.supported:
             super().spin_once(timeout_sec)
             return
-        entities = self._current_entities()
         wait_set = entities.wait_set
         wait_set.clear_entities()
         for sub in entities.subscriptions:
