@@ -3,9 +3,13 @@ in-process evaluation, and the faults (a node killed mid-run, bad parameters, ba
 
 from __future__ import annotations
 
+import os
 import re
 import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -216,3 +220,39 @@ def test_play_binaural_separates_a_file_through_the_live_separator(processes, sm
     separated, out_rate = soundfile.read(tmp_path / "out.wav")
     assert out_rate == rate and separated.shape == (len(t),)
     assert np.all(np.isfinite(separated)) and np.sqrt(np.mean(separated**2)) > 1e-3
+
+
+def test_sigterm_to_run_pipeline_stops_every_node(small_library, small_data_dir, tmp_path):
+    marker = f"sigterm-{os.getpid()}-{time.monotonic_ns()}"
+    env = {**node_env(small_data_dir), "M2H_TEST_MARKER": marker}
+    run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
+                            "--episodes", "30", "--controller", CONTROLLER, *tiny_sets()],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
+                           start_new_session=True)
+
+    def marked_nodes() -> list[int]:
+        pids = []
+        for proc in Path("/proc").iterdir():
+            try:
+                if proc.name.isdigit() and marker.encode() in (proc / "environ").read_bytes():
+                    pids.append(int(proc.name))
+            except OSError:
+                pass
+        return [pid for pid in pids if pid != run.pid]
+
+    try:
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "scores" / "results.json").exists():  # the run is under way
+            assert run.poll() is None and time.monotonic() < deadline, run.communicate()
+            time.sleep(0.1)
+        assert marked_nodes()
+        run.send_signal(signal.SIGTERM)
+        out, _ = run.communicate(timeout=60)
+        assert "interrupted: stopping every node" in out
+        assert run.returncode == 130
+        assert not marked_nodes()
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+        for pid in marked_nodes():
+            os.kill(pid, signal.SIGKILL)

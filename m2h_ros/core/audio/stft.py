@@ -144,10 +144,17 @@ def stft(waveform: np.ndarray, *, config: StftConfig = DEFAULT_STFT) -> np.ndarr
     if config.center:
         if config.pad_mode == "reflect" and x.shape[-1] <= pad:
             raise AudioError(f"stft with reflect padding needs more than {pad} samples, got {x.shape[-1]}")
-        x = np.pad(x, [(0, 0)] * (x.ndim - 1) + [(pad, pad)], mode=config.pad_mode)
+        if config.pad_mode == "reflect":  # = np.pad(mode="reflect"), without its per-call overhead
+            x = np.concatenate([x[..., pad:0:-1], x, x[..., -2 : -pad - 2 : -1]], axis=-1)
+        else:
+            x = np.pad(x, [(0, 0)] * (x.ndim - 1) + [(pad, pad)], mode=config.pad_mode)
     if x.shape[-1] < config.n_fft:
         raise AudioError(f"stft needs at least n_fft={config.n_fft} samples after padding, got {x.shape[-1]}")
-    frames = np.lib.stride_tricks.sliding_window_view(x, config.n_fft, axis=-1)[..., :: config.hop_length, :]
+    x = np.ascontiguousarray(x)
+    n_frames = 1 + (x.shape[-1] - config.n_fft) // config.hop_length
+    step = x.strides[-1]
+    frames = np.lib.stride_tricks.as_strided(x, (*x.shape[:-1], n_frames, config.n_fft),
+                                             (*x.strides[:-1], config.hop_length * step, step), writeable=False)
     spec = scipy.fft.rfft(frames * _cached_window(config, x.dtype), axis=-1)
     return np.swapaxes(spec, -1, -2)
 
