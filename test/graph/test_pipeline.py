@@ -130,6 +130,27 @@ def test_killed_controller_is_named_and_the_bag_stays_readable(processes, small_
     assert len(messages["/audio"]) > len(messages.get("/cmd", []))
 
 
+def test_a_stalled_evaluator_holds_the_sim_within_its_lag_and_is_named(processes, small_library, small_data_dir,
+                                                                          tmp_path):
+    lag = 8
+    procs = start_graph(processes, small_data_dir, tmp_path,
+                        sim=dict(num_episodes=30, step_timeout_s=3.0, max_evaluator_lag=lag))
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "scores" / "results.json").exists():  # the first episode is scored
+        if procs["sim_node"].poll() is not None or time.monotonic() > deadline:
+            pytest.fail(f"the run never got going: {procs['sim_node'].communicate()[1]}")
+        time.sleep(0.1)
+    procs["evaluator_node"].send_signal(signal.SIGSTOP)  # alive (in the graph) but scoring nothing
+    try:
+        _, err = procs["sim_node"].communicate(timeout=60)
+    finally:
+        procs["evaluator_node"].send_signal(signal.SIGCONT)
+    assert procs["sim_node"].returncode == 2
+    unscored = re.search(r"evaluator_node left (\d+) observations unscored", err)
+    assert unscored, err
+    assert 1 <= int(unscored.group(1)) <= lag
+
+
 def test_bad_params_file_names_the_parameter(processes, tmp_path):
     params = tmp_path / "sim.yaml"
     params.write_text("sim_node:\n  ros__parameters:\n    mic_noise: -1.0\n")
