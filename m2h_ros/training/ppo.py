@@ -73,7 +73,7 @@ from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_inputs, save_policy  # noqa: E402
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
-from m2h_ros.training.allocator import keep_freed_blocks  # noqa: E402
+from m2h_ros.allocator import keep_freed_blocks  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 

@@ -1,5 +1,5 @@
-"""Keep large freed blocks in the process's heap (glibc), so the PPO update's big temporaries are reused
-instead of mapped afresh.
+"""Keep large freed blocks in the process's heap (glibc), so big temporaries are reused instead of
+mapped afresh: the PPO update's tensors, and the nodes' message buffers.
 
 glibc serves a block above its mmap threshold (adapting up to 32 MiB) with a fresh ``mmap`` and returns
 it to the kernel on ``free``; the next allocation of that size then faults in and zero-fills every
@@ -7,6 +7,9 @@ page again. A PPO update allocates and frees tensors of 5-42 MB many times (320-
 their gradients, the stacked rollout): without this, a benchmark run spent ~35% more page faults and
 ~0.4 ms of system time per env step on it (docs/policies.md, Speed). Raising the mmap and trim
 thresholds keeps those blocks in the heap for the next update; the peak resident size stays the same.
+The pipeline's messages are 64-200 KiB, just above the initial 128 KiB threshold: a node receiving a
+188 KiB message spent 0.74 ms of CPU on it with glibc's defaults, 0.48 ms with this (a two-process
+ping measured on these cores, StepExecutor, 300 messages).
 
 Process-wide, like ``torch.set_num_threads``; a no-op (returns False) where the C library has no
 ``mallopt`` (not glibc).

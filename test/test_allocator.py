@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from m2h_ros.training.allocator import keep_freed_blocks
+from m2h_ros.allocator import keep_freed_blocks
 
 # Minor page faults of 10 allocations of 64 MB that touch every page (after one that grows the heap).
 MEASURE = """
