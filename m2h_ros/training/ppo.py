@@ -340,7 +340,7 @@ class PPOTrainer:
         else:
             self.device = torch.device("cpu")
         torch.set_num_threads(config.threads)
-        keep_freed_blocks()  # the update's large temporaries: reused, not mapped afresh (training/allocator.py)
+        keep_freed_blocks()  # the update's large temporaries: reused, not mapped afresh (m2h_ros/allocator.py)
         torch.manual_seed(config.seed)
         self.policy_config = config.policy_config()
         self.net = PolicyNet(self.policy_config).to(self.device)
