@@ -16,6 +16,7 @@ node, tasks, coroutine callbacks) falls back to rclpy's own loop, so it is never
 from __future__ import annotations
 
 import inspect
+import time
 from contextlib import ExitStack
 from itertools import chain
 
@@ -69,6 +70,9 @@ class StepExecutor(SingleThreadedExecutor):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._entities: _Entities | None = None
+        # Process CPU seconds when the first message arrived: a node's work from there on, without its
+        # start-up (imports, models, discovery), is what a pipeline step costs.
+        self.cpu_at_first_message: float | None = None
 
     def _current_entities(self) -> _Entities:
         key = tuple(map(id, chain.from_iterable(chain(n.subscriptions, n.timers, n.services, n.waitables,
@@ -123,6 +127,8 @@ class StepExecutor(SingleThreadedExecutor):
             if sub.handle.pointer in subs_ready:
                 taken = sub.handle.take_message(sub.msg_type, sub.raw)
                 if taken is not None:
+                    if self.cpu_at_first_message is None:
+                        self.cpu_at_first_message = time.process_time()
                     if sub._callback_type is Subscription.CallbackType.MessageOnly:
                         sub.callback(taken[0])
                     else:

@@ -54,10 +54,13 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     finally:
         if node is not None:
             usage = resource.getrusage(resource.RUSAGE_SELF)
-            # Per-process CPU: where a graph run's time goes. Printed, not logged: after Ctrl-C the
-            # node's rosout publisher has no context left.
-            print(f"{node.get_name()}: cpu time {usage.ru_utime + usage.ru_stime:.2f} s "
-                  f"(user {usage.ru_utime:.2f}, system {usage.ru_stime:.2f})", flush=True)
+            total = usage.ru_utime + usage.ru_stime
+            first = executor.cpu_at_first_message
+            since = "" if first is None else f", {total - first:.2f} s since its first message"
+            # Per-process CPU: where a graph run's time goes (scripts/bench/pipeline.py reads it).
+            # Printed, not logged: after Ctrl-C the node's rosout publisher has no context left.
+            print(f"{node.get_name()}: cpu time {total:.2f} s (user {usage.ru_utime:.2f}, "
+                  f"system {usage.ru_stime:.2f}){since}", flush=True)
             node.destroy_node()
         rclpy.try_shutdown()
     sys.exit(code)

@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """Pipeline throughput: steps per second through the five-process ROS graph vs the same models and
 episodes in-process (one slot, camera on, scores computed), measured in one run, and their ratio;
-plus the separator node's per-step latency. Test episodes, shipped separator, banks cached.
+plus the separator node's per-step latency and each node's CPU per step (the CPU time it prints at exit
+since its first message, so without its start-up) beside the in-process CPU per step. Test episodes,
+shipped separator, banks cached.
 
     python scripts/bench/pipeline.py [--episodes 5] [--repeats 2] [--controller random]
 """
@@ -31,31 +33,37 @@ from m2h_ros.node_configs import SimConfig  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def in_process(config: SimConfig, controller: str) -> float:
-    """Steps per second of evaluate_controller on the sim's episodes, one slot, 1 torch thread."""
+NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node")
+
+
+def in_process(config: SimConfig, controller: str) -> tuple[float, float]:
+    """Steps per second of evaluate_controller on the sim's episodes (one slot, 1 torch thread) and
+    its CPU ms per step."""
     torch.set_num_threads(1)
     library = sim_world.sound_library(config.sound_library)
     episodes = sim_world.sim_episodes(config, library)
     runner = SeparatorRunner(load_separator(DEFAULT_SEPARATOR_CHECKPOINT), 1)
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), time.process_time()
     results = evaluate_controller(make_controller(controller, 1), runner, episodes, library,
                                   env_config=sim_world.env_config(config), progress=False)
-    return sum(len(r.si_sdr) for r in results) / (time.perf_counter() - started)
+    steps = sum(len(r.si_sdr) for r in results)
+    return steps / (time.perf_counter() - started), (time.process_time() - cpu) / steps * 1e3
 
 
-def through_graph(episodes: int, controller: str) -> tuple[float, str]:
-    """Steps per second the sim reports (first publication to last answer), separator latency line."""
+def through_graph(episodes: int, controller: str) -> tuple[float, str, int, dict[str, float]]:
+    """Steps per second the sim reports (first publication to last answer), separator latency line,
+    steps played, CPU seconds of each node since its first message."""
     with tempfile.TemporaryDirectory() as tmp:
         result = subprocess.run([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--episodes", str(episodes),
                                  "--controller", controller, "--out", tmp], capture_output=True, text=True)
         logs = Path(tmp) / "logs"
-        sim_log = (logs / "sim_node.log").read_text()
-        separator_log = (logs / "separator_node.log").read_text()
+        texts = {node: (logs / f"{node}.log").read_text() for node in NODES}
     if result.returncode:
-        raise SystemExit(f"pipeline run failed:\n{result.stdout}\n{result.stderr}\n{sim_log}")
-    rate = float(re.search(r"\(([\d.]+) steps/s\)", sim_log).group(1))
-    latency = re.search(r"latency per step.*", separator_log)
-    return rate, latency.group(0) if latency else "(no latency line)"
+        raise SystemExit(f"pipeline run failed:\n{result.stdout}\n{result.stderr}\n{texts['sim_node']}")
+    done = re.search(r"(\d+) steps in [\d.]+ s \(([\d.]+) steps/s\)", texts["sim_node"])
+    latency = re.search(r"latency per step.*", texts["separator_node"])
+    cpu = {node: float(re.search(r"([\d.]+) s since its first message", text).group(1)) for node, text in texts.items()}
+    return float(done.group(2)), latency.group(0) if latency else "(no latency line)", int(done.group(1)), cpu
 
 
 def main(argv=None) -> int:
@@ -68,11 +76,15 @@ def main(argv=None) -> int:
     in_process(config, args.controller)  # warm: RIR banks of these episodes' sources, camera views
     for repeat in range(args.repeats):
         load = os.getloadavg()[0]
-        graph, latency = through_graph(args.episodes, args.controller)
-        local = in_process(config, args.controller)
+        graph, latency, steps, cpu = through_graph(args.episodes, args.controller)
+        local, local_cpu = in_process(config, args.controller)
+        per_step = {node: cpu[node] / steps * 1e3 for node in NODES}
         print(f"run {repeat + 1}: graph {graph:.1f} steps/s, in-process {local:.1f} steps/s, "
               f"graph/in-process time ratio {local / graph:.2f} (target <= 1.5; graph target >= 30 steps/s); "
               f"separator node {latency}; load average {load:.2f}", flush=True)
+        nodes = ", ".join(f"{node.removesuffix('_node')} {ms:.1f}" for node, ms in per_step.items())
+        print(f"  CPU ms per step: {nodes}; "
+              f"graph total {sum(per_step.values()):.1f} vs in-process {local_cpu:.1f}", flush=True)
     return 0
 
 
