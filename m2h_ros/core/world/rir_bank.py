@@ -116,15 +116,16 @@ class RirBank:
         ``out``: a (B, 2, >= T) float32 array to write them into (its first T samples; the rest is
         left as it is, e.g. the zero padding of a convolution buffer); returned.
         """
-        sources = np.asarray(source_nodes, dtype=np.int64).ravel()
-        receivers = np.asarray(receiver_nodes, dtype=np.int64).ravel()
-        heads = np.asarray(headings, dtype=np.int64).ravel()
+        # Python lists: the env asks for one or two RIRs at a time, where numpy's checks cost more
+        # than the copies.
+        sources, receivers, heads = (np.asarray(values, dtype=np.int64).ravel().tolist()
+                                     for values in (source_nodes, receiver_nodes, headings))
         if not len(sources) == len(receivers) == len(heads):
             raise ConfigError(f"rirs() needs equally long index arrays, got {len(sources)}, "
                               f"{len(receivers)}, {len(heads)}")
         for name, values, limit in (("source", sources, self.n_nodes), ("receiver", receivers, self.n_nodes),
                                     ("heading", heads, 4)):
-            if len(values) and (values.min() < 0 or values.max() >= limit):
+            if values and (min(values) < 0 or max(values) >= limit):
                 raise ConfigError(f"{name} index out of range 0..{limit - 1}: {values}")
         n_early, n_taps = self.config.n_early, self.config.n_taps
         if out is None:
@@ -136,8 +137,7 @@ class RirBank:
         # Only the late part and the asked heading's early part are read, as contiguous slices
         # straight into the output (a fancy index would copy them once more).
         late_start = N_HEADINGS * 2 * n_early
-        for item, (source, receiver, heading) in enumerate(zip(sources.tolist(), receivers.tolist(),
-                                                                heads.tolist())):
+        for item, (source, receiver, heading) in enumerate(zip(sources, receivers, heads)):
             row = self._source(source)[receiver]
             out[item, :, :n_taps] = row[late_start:].reshape(2, n_taps)
             start = heading * 2 * n_early
