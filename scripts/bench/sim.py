@@ -8,8 +8,9 @@ under data_dir() first and reports their size per scene (and the build time of w
 --fresh-build also times a full build of every scene into a temporary cache with
 scripts/bench/acoustics.py. Sound library: the full default
 one if it is built, else the --small one (built if missing); the output says which. Each throughput
-case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, minor page faults per env step and the
-load average before it (other jobs on the cores slow every figure). Then the cost of a fresh render:
+case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, its
+minor page faults per env step and the load average before it (other jobs on the cores slow every
+figure). Then the cost of a fresh render:
 CPU per env step of 16 envs that render every step (no pose cache, camera on, 1 thread) beside the
 bare FFT work such a step needs (RIR rffts, inverse FFTs, STFT), timed in the same process, best of 5
 blocks each. Last, the sanity figure:
