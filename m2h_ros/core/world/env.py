@@ -31,7 +31,6 @@ delay-align the dry clip with what the ears hear when scoring estimates in the m
 
 from __future__ import annotations
 
-import threading
 from collections import OrderedDict
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -488,14 +487,8 @@ class BatchEnv:
         keys = list(zip(node.tolist(), heading.tolist()))
         fresh = [key not in self._pose_cache[slot] for slot, key in zip(slots.tolist(), keys)]
         queue = iter(sorted(range(n), key=fresh.__getitem__, reverse=True))   # stable: fresh first
-        helpers = min(self.threads, n) - 1
-        # The helpers must hold the GIL once before this thread goes on: a thread woken while
-        # another runs Python waits for the GIL up to the switch interval (5 ms, a whole step).
-        started = threading.Barrier(helpers + 1)
-        jobs = [self._pool.submit(self._render_rows, slots, keys, queue, outputs, started)
-                for _ in range(helpers)]
-        if helpers:
-            started.wait()
+        jobs = [self._pool.submit(self._render_rows, slots, keys, queue, outputs)
+                for _ in range(min(self.threads, n) - 1)]
         positions = np.empty((n, 2), np.float64)
         geodesic = np.empty(n, np.float32)
         target_distance = np.empty(n, np.float64)
@@ -509,7 +502,7 @@ class BatchEnv:
             target_distance[rows] = np.linalg.norm(grid.positions[target[rows]] - positions[rows], axis=1)
             if cfg.camera:
                 data.views.copy_views(node[rows], heading[rows], rgb, depth[..., 0], rows.tolist())
-        self._render_rows(slots, keys, queue, outputs, None)
+        self._render_rows(slots, keys, queue, outputs)
         for job in jobs:
             job.result()
         audio, target_binaural, spectrogram = outputs
@@ -530,16 +523,13 @@ class BatchEnv:
         return obs, info
 
     def _render_rows(self, slots: np.ndarray, keys: list[tuple[int, int]], rows,
-                     outputs: tuple[np.ndarray, np.ndarray, np.ndarray], started: threading.Barrier | None
-                     ) -> None:
+                     outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         """Render the rows that the iterator ``rows`` hands out: mixture (+ noise), target alone,
         log-magnitude STFT, into ``outputs`` (audio, target_binaural, spectrogram).
 
         Poses an episode already visited come from the slot's pose cache (same numbers); the
         microphone noise is drawn afresh at every step all the same.
         """
-        if started is not None:
-            started.wait()
         audio, target_binaural, spectrogram = outputs
         cfg, noisy = self.config, self.config.mic_noise > 0
         for row in rows:
