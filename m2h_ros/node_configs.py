@@ -35,7 +35,11 @@ class SimConfig(Config):
     expect_nodes: tuple[str, ...] = setting(("separator_node", "controller_node"),
                                             "nodes that must be subscribed before step 0 (of: "
                                             + ", ".join(PIPELINE_NODES) + "); with evaluator_node "
-                                            "each episode waits for its score")
+                                            "the run ends when every episode is scored")
+    max_evaluator_lag: int = setting(64, "lockstep with evaluator_node: observations the sim may publish "
+                                     "before the evaluator has scored them (it runs beside the control "
+                                     "loop, behind it); below the step topics' history of 128, so "
+                                     "nothing it has not read is dropped", min=1, max=100)
     mic_noise: float = setting(0.0, "std of white noise added to each ear, relative to the "
                                "mixture's RMS", min=0.0, max=10.0)
     sound_library: str = setting("", "sounds: empty = the built-in library, small = its test-size "

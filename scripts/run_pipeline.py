@@ -125,8 +125,13 @@ def last_error(log: Path) -> str:
     return lines[-1].strip() if lines else ""
 
 
+def interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt  # SIGTERM (kill, timeout, a batch system) stops the nodes as Ctrl-C does
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
+    signal.signal(signal.SIGTERM, interrupt)
     args.out = (args.out or ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")).resolve()
     if (args.out / "bag").exists():
         raise SystemExit(f"run_pipeline: {args.out / 'bag'} exists; choose another --out")
@@ -145,6 +150,7 @@ def main(argv=None) -> int:
     procs: dict[str, subprocess.Popen] = {}
     logs: dict[str, Path] = {}
     started = time.monotonic()
+    interrupted = False
     try:
         for node in NODES:
             if node == "recorder_node" and args.no_record:
@@ -164,6 +170,7 @@ def main(argv=None) -> int:
                 break
             time.sleep(0.2)
     except KeyboardInterrupt:
+        interrupted = True
         print("[run] interrupted: stopping every node", flush=True)
         if "sim_node" in procs:
             stop(procs["sim_node"])
@@ -192,7 +199,7 @@ def main(argv=None) -> int:
     if failed:
         print(f"[run] FAILED: {', '.join(f'{n} (exit {c})' for n, c in failed.items())}", file=sys.stderr)
         return 1
-    return 0
+    return 130 if interrupted else 0  # 128 + SIGINT, the shell's code for an interrupted command
 
 
 if __name__ == "__main__":

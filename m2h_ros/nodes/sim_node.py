@@ -3,9 +3,12 @@ step's binaural mixture, camera images, odometry, episode info and (for the eval
 ground truth, and applies one MotionCommand per step.
 
 Lockstep (default): step k is published, then the node waits for the controller's command for step
-k (at most step_timeout_s; then it names the node that did not answer and exits non-zero). At an
-episode's last observation it waits for the evaluator's EpisodeScore (when evaluator_node is
-expected) or the separator's output, so nothing is cut off. Free-running: steps at rate_hz; a step
+k (at most step_timeout_s; then it names the node that did not answer and exits non-zero). The
+evaluator scores beside the control loop, behind it: when evaluator_node is expected, the sim
+publishes at most max_evaluator_lag observations it has not scored yet (its StepScores are the
+credit), so the evaluator never falls further behind than the step topics' history holds, and the
+run ends when every episode is scored. Without an evaluator, an episode's last observation waits for
+the separator's output, so nothing is cut off. Free-running: steps at rate_hz; a step
 whose command has not arrived holds the robot in place and is counted as dropped.
 Exits with code 0 after the last episode."""
 
@@ -13,7 +16,7 @@ from __future__ import annotations
 
 import time
 
-from m2h_msgs.msg import AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand
+from m2h_msgs.msg import AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, StepScore
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
@@ -64,9 +67,15 @@ class SimNode(Node):
                                  event_callbacks=subscription_events(self.get_logger(), topics.SEPARATED_AUDIO))
         self.create_subscription(EpisodeScore, topics.EPISODE_SCORE, self.on_score, STEP,
                                  event_callbacks=subscription_events(self.get_logger(), topics.EPISODE_SCORE))
+        self.scores_evaluator = "evaluator_node" in cfg.expect_nodes
+        if self.scores_evaluator:
+            self.create_subscription(StepScore, topics.STEP_SCORE, self.on_step_score, STEP,
+                                     event_callbacks=subscription_events(self.get_logger(), topics.STEP_SCORE))
         self.commands: dict[tuple[str, int], int] = {}
         self.separated: tuple[str, int] = ("", -1)  # the last (episode, step) the separator answered
         self.scored: set[str] = set()
+        self.scored_steps = 0  # StepScores received: the evaluator's progress
+        self.played: list[str] = []  # episode ids started
         self.current: PlayerStep | None = None
         self.position = -1  # index into self.indices
         self.published_at = self.first_published_at = 0.0
@@ -92,6 +101,10 @@ class SimNode(Node):
 
     def on_score(self, msg: EpisodeScore) -> None:
         self.scored.add(msg.episode_id)
+        self.poll()
+
+    def on_step_score(self, msg: StepScore) -> None:
+        self.scored_steps += 1
         self.poll()
 
     def poll(self) -> None:
@@ -125,24 +138,36 @@ class SimNode(Node):
     def lockstep(self, now: float) -> None:
         episode_id, step = self.player.episode.episode_id, int(self.current.obs["step"][0])
         if self.current.done:
-            answered = (episode_id in self.scored if "evaluator_node" in self.config.expect_nodes
-                        else self.separated == (episode_id, step))
+            if self.scores_evaluator:
+                last = self.position == len(self.indices) - 1
+                answered = set(self.played) <= self.scored if last else self.evaluator_keeps_up()
+            else:
+                answered = self.separated == (episode_id, step)
             if answered:
                 self.next_episode()
             elif now - self.published_at > self.config.step_timeout_s:
-                who = "evaluator_node (no EpisodeScore)" if "evaluator_node" in self.config.expect_nodes \
-                    else "separator_node (no output)"
-                raise PipelineError(f"episode {episode_id} ended at step {step} and {who} came within "
+                who = (f"evaluator_node left {self.steps - self.scored_steps} observations unscored"
+                       if self.scores_evaluator else "separator_node sent no output")
+                raise PipelineError(f"episode {episode_id} ended at step {step} and {who} for "
                                     f"{self.config.step_timeout_s} s{self.absent_nodes()}")
             return
-        action = self.commands.pop((episode_id, step), None)
-        if action is not None:
+        action = self.commands.get((episode_id, step))
+        if action is not None and self.evaluator_keeps_up():
+            del self.commands[(episode_id, step)]
             self.advance(action)
         elif now - self.published_at > self.config.step_timeout_s:
+            if action is not None:
+                raise PipelineError(f"{episode_id} step {step}: evaluator_node left {self.steps - self.scored_steps} "
+                                    f"observations unscored for {self.config.step_timeout_s} s"
+                                    f"{self.absent_nodes()}")
             culprit = ("controller_node" if self.separated == (episode_id, step) else "separator_node")
             raise PipelineError(f"no motion command for {episode_id} step {step} within "
                                 f"{self.config.step_timeout_s} s: {culprit} did not answer"
                                 f"{self.absent_nodes()}")
+
+    def evaluator_keeps_up(self) -> bool:
+        """Whether one more observation stays within max_evaluator_lag of the evaluator's scores."""
+        return not self.scores_evaluator or self.steps - self.scored_steps < self.config.max_evaluator_lag
 
     def free_step(self) -> None:
         if self.current is None or self.current.done:
@@ -168,6 +193,7 @@ class SimNode(Node):
                                    f"({self.steps / max(elapsed, 1e-9):.1f} steps/s){dropped}")
             raise RunFinished()
         self.current = self.player.start(self.indices[self.position])
+        self.played.append(self.player.episode.episode_id)
         self.commands = {k: v for k, v in self.commands.items() if k[0] == self.player.episode.episode_id}
         self.publish(episode_start=True)
 

@@ -8,10 +8,11 @@ import time
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from m2h_ros.errors import M2HError
+from m2h_ros.ros.executor import StepExecutor
 
 
 class RunFinished(Exception):
@@ -26,7 +27,7 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     try:
         # Built before the node, so a Ctrl-C right after the node says "ready" cannot land inside
         # the executor's constructor (that leaves a half-built executor whose __del__ raises).
-        executor = SingleThreadedExecutor()
+        executor = StepExecutor()
         node = node_type()
         profile_dir = os.environ.get("M2H_PROFILE_DIR")
         if profile_dir:  # cProfile of the spin (not the start-up), one <node>.prof per process

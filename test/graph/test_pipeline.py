@@ -3,9 +3,13 @@ in-process evaluation, and the faults (a node killed mid-run, bad parameters, ba
 
 from __future__ import annotations
 
+import os
 import re
 import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -126,6 +130,27 @@ def test_killed_controller_is_named_and_the_bag_stays_readable(processes, small_
     assert len(messages["/audio"]) > len(messages.get("/cmd", []))
 
 
+def test_a_stalled_evaluator_holds_the_sim_within_its_lag_and_is_named(processes, small_library, small_data_dir,
+                                                                          tmp_path):
+    lag = 8
+    procs = start_graph(processes, small_data_dir, tmp_path,
+                        sim=dict(num_episodes=30, step_timeout_s=3.0, max_evaluator_lag=lag))
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "scores" / "results.json").exists():  # the first episode is scored
+        if procs["sim_node"].poll() is not None or time.monotonic() > deadline:
+            pytest.fail(f"the run never got going: {procs['sim_node'].communicate()[1]}")
+        time.sleep(0.1)
+    procs["evaluator_node"].send_signal(signal.SIGSTOP)  # alive (in the graph) but scoring nothing
+    try:
+        _, err = procs["sim_node"].communicate(timeout=60)
+    finally:
+        procs["evaluator_node"].send_signal(signal.SIGCONT)
+    assert procs["sim_node"].returncode == 2
+    unscored = re.search(r"evaluator_node left (\d+) observations unscored", err)
+    assert unscored, err
+    assert 1 <= int(unscored.group(1)) <= lag
+
+
 def test_bad_params_file_names_the_parameter(processes, tmp_path):
     params = tmp_path / "sim.yaml"
     params.write_text("sim_node:\n  ros__parameters:\n    mic_noise: -1.0\n")
@@ -216,3 +241,39 @@ def test_play_binaural_separates_a_file_through_the_live_separator(processes, sm
     separated, out_rate = soundfile.read(tmp_path / "out.wav")
     assert out_rate == rate and separated.shape == (len(t),)
     assert np.all(np.isfinite(separated)) and np.sqrt(np.mean(separated**2)) > 1e-3
+
+
+def test_sigterm_to_run_pipeline_stops_every_node(small_library, small_data_dir, tmp_path):
+    marker = f"sigterm-{os.getpid()}-{time.monotonic_ns()}"
+    env = {**node_env(small_data_dir), "M2H_TEST_MARKER": marker}
+    run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
+                            "--episodes", "30", "--controller", CONTROLLER, *tiny_sets()],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
+                           start_new_session=True)
+
+    def marked_nodes() -> list[int]:
+        pids = []
+        for proc in Path("/proc").iterdir():
+            try:
+                if proc.name.isdigit() and marker.encode() in (proc / "environ").read_bytes():
+                    pids.append(int(proc.name))
+            except OSError:
+                pass
+        return [pid for pid in pids if pid != run.pid]
+
+    try:
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "scores" / "results.json").exists():  # the run is under way
+            assert run.poll() is None and time.monotonic() < deadline, run.communicate()
+            time.sleep(0.1)
+        assert marked_nodes()
+        run.send_signal(signal.SIGTERM)
+        out, _ = run.communicate(timeout=60)
+        assert "interrupted: stopping every node" in out
+        assert run.returncode == 130
+        assert not marked_nodes()
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+        for pid in marked_nodes():
+            os.kill(pid, signal.SIGKILL)

@@ -140,24 +140,21 @@ def stft(waveform: np.ndarray, *, config: StftConfig = DEFAULT_STFT) -> np.ndarr
     if x.ndim < 1 or not np.issubdtype(x.dtype, np.floating):
         raise AudioError(f"stft expects a real float waveform (..., N), got dtype {x.dtype} shape {x.shape}")
     _check_finite(x, "stft input")
-    pad, n = config.n_fft // 2, x.shape[-1]
+    pad = config.n_fft // 2
     if config.center:
-        if config.pad_mode == "reflect" and n <= pad:
-            raise AudioError(f"stft with reflect padding needs more than {pad} samples, got {n}")
-        # = np.pad(x, pad, mode=pad_mode) on the last axis, without its ~40 us of Python per call.
-        padded = np.empty((*x.shape[:-1], n + 2 * pad), x.dtype)
-        padded[..., pad:pad + n] = x
-        if config.pad_mode == "reflect":
-            padded[..., :pad], padded[..., pad + n:] = x[..., pad:0:-1], x[..., -2:-pad - 2:-1]
+        if config.pad_mode == "reflect" and x.shape[-1] <= pad:
+            raise AudioError(f"stft with reflect padding needs more than {pad} samples, got {x.shape[-1]}")
+        if config.pad_mode == "reflect":  # = np.pad(mode="reflect"), without its per-call overhead
+            x = np.concatenate([x[..., pad:0:-1], x, x[..., -2 : -pad - 2 : -1]], axis=-1)
         else:
-            padded[..., :pad] = padded[..., pad + n:] = 0
-        x = padded
+            x = np.pad(x, [(0, 0)] * (x.ndim - 1) + [(pad, pad)], mode=config.pad_mode)
     if x.shape[-1] < config.n_fft:
         raise AudioError(f"stft needs at least n_fft={config.n_fft} samples after padding, got {x.shape[-1]}")
+    x = np.ascontiguousarray(x)
+    n_frames = 1 + (x.shape[-1] - config.n_fft) // config.hop_length
     step = x.strides[-1]
-    frames = np.lib.stride_tricks.as_strided(
-        x, (*x.shape[:-1], 1 + (x.shape[-1] - config.n_fft) // config.hop_length, config.n_fft),
-        (*x.strides[:-1], config.hop_length * step, step), writeable=False)
+    frames = np.lib.stride_tricks.as_strided(x, (*x.shape[:-1], n_frames, config.n_fft),
+                                             (*x.strides[:-1], config.hop_length * step, step), writeable=False)
     # Transformed along the frame axis of the transposed frames, so that the result comes out
     # C-contiguous in the (..., F, T) layout (same numbers): a swapped view would make every later
     # elementwise pass into (..., F, T) arrays (|X|, log) strided, ~5x slower.
