@@ -48,8 +48,8 @@ from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, stft
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.camera import CameraConfig, CameraViews
-from m2h_ros.core.world.heap import retain_freed_memory
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode, scene_at
+from m2h_ros.core.world.heap import retain_freed_memory
 from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.rir_spectra import RirSpectra
@@ -114,7 +114,7 @@ class _PoseCache:
 
     One array per render made each episode's renders fresh heap memory, which glibc hands back to
     the system when a reset frees them all at once; the next episode then paid ~160 page faults
-    per render (~0.2 ms of CPU per env step with 16 envs, docs/simulator.md).
+    per render (docs/simulator.md; ``heap.retain_freed_memory`` keeps such memory too).
     """
 
     def __init__(self, capacity: int, n_samples: int, spectrogram_shape: tuple[int, int], *,
@@ -482,7 +482,7 @@ class BatchEnv:
                    np.empty((n, 2, f.n_freq, f.n_frames), np.float32))    # spectrogram
         # Rows are independent, so the threads render them in parallel (numpy and pocketfft release
         # the GIL), taking one row at a time from a shared iterator (next() on it is atomic), fresh
-        # renders first: one costs ~10x a pose-cache hit, so fixed chunks would leave a thread idle
+        # renders first: one costs ~25x a pose-cache hit, so fixed chunks would leave a thread idle
         # while the other renders. The results do not depend on which thread renders a row.
         keys = list(zip(node.tolist(), heading.tolist()))
         fresh = [key not in self._pose_cache[slot] for slot, key in zip(slots.tolist(), keys)]
