@@ -167,16 +167,19 @@ class BatchEnv:
     and ``info["final_observation"]`` / ``info["final_info"]`` hold the whole batch as it was before
     those resets. Without it, stepping after an episode ended raises until ``reset()``.
 
-    Speed options that leave every number unchanged: ``threads`` renders contiguous chunks of slots
-    in parallel; ``pose_cache`` keeps, per slot, the renders of up to that many poses of the current
-    episode, so a revisited pose (turning back, Stop in near-target) skips the convolution and STFT
-    (only the microphone noise is drawn anew); ``rir_spectra_mib`` (default 0: off) bounds an LRU of
+    Speed options that leave every number unchanged: ``threads`` render the slots in parallel
+    (each takes the next slot to render, fresh poses first); ``pose_cache`` keeps, per slot, the
+    renders of up to that many poses of the current episode (at most max_steps + 1 are kept), so a
+    revisited pose (turning back, Stop in near-target) skips the convolution and STFT (only the
+    microphone noise is drawn anew); ``rir_spectra_mib`` (default 0: off) bounds an LRU of
     RIR spectra per (scene, source node, receiver node, heading) shared by all slots, so a fresh pose
     whose RIRs were transformed before (by any slot, in any episode) skips their FFTs
     (``RirSpectra``; 192 KiB an entry for 0.5 s RIRs). It pays where poses recur across episodes
     (many clips at few poses); random-action episodes over the test scenes hit it only ~15% of the
     time at 256 MiB, where its memory traffic costs more than it saves (docs/simulator.md).
-    ``prepare()`` fills the RIR banks and view caches.
+    ``prepare()`` fills the RIR banks and view caches. Constructing one sets glibc's malloc to keep
+    freed memory for the whole process (``heap.retain_freed_memory``: a few MiB freed and taken
+    back every step otherwise cost page faults).
     """
 
     def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, n_envs: int,
