@@ -55,7 +55,11 @@ class ReplayConfig:
     namespace: str = "/"  # the graph's namespace: relative topic names resolve under it
     atol: float = 1e-3  # tolerance of replayed vs live figures
     batch_steps: int = 16  # complete steps scored together (speed); memory stays bounded by it
-    open_episodes: int = 2  # an unfinished episode is given up once this many newer ones have begun
+    # An unfinished episode is given up once this many newer ones have begun. In a pipeline bag the
+    # separator and the evaluator run behind the simulator by up to the sim's max_evaluator_lag (<= 100
+    # observations, ~5 near-target episodes), so an episode's last estimates can come after newer
+    # episodes' first observations. Memory is bounded by the pending steps, not by this count.
+    open_episodes: int = 8
 
     def __post_init__(self) -> None:
         if not self.namespace.startswith("/"):

@@ -39,6 +39,13 @@ class SyntheticRun:
     seed: int = 0
     camera: bool = True
     stop_after: int | None = None  # far-target: the controller stops at this step (then one more observation)
+    # The separator's outputs and the live scores are logged this many observations late, as in a
+    # pipeline bag (separator and evaluator run behind the simulator), across episode boundaries.
+    estimate_lag: int = 0
+
+
+LATE_TOPICS = (topics.SEPARATED_BINAURAL, topics.MONAURAL, topics.REFINED, topics.SEPARATED_AUDIO,
+               topics.STEP_SCORE, topics.EPISODE_SCORE)
 
 
 def _types():
@@ -99,13 +106,28 @@ def write_synthetic_run(path: str | Path, run: SyntheticRun = SyntheticRun(), *,
     results = []
     clock = [1_700_000_000 * 10**9]
 
-    def put(topic: str, message: Any) -> None:
+    late: list[tuple[int, str, Any]] = []  # (observation it belongs to, topic, message)
+    observations = [0]
+
+    def write(topic: str, message: Any) -> None:
         clock[0] += 1000
         writer.write(topic if topic.startswith("/") else "/" + topic, message.__msgtype__, clock[0], message)
+
+    def put(topic: str, message: Any) -> None:
+        if topic == topics.AUDIO:  # a new observation: what is now lag observations old comes out
+            observations[0] += 1
+            while late and late[0][0] <= observations[0] - run.estimate_lag:
+                write(*late.pop(0)[1:])
+        if run.estimate_lag and topic in LATE_TOPICS:
+            late.append((observations[0], topic, message))
+        else:
+            write(topic, message)
 
     try:
         for e in range(run.episodes):
             results.append(_episode(run, e, put, clock, live_score, t))
+        for _, topic, message in late:
+            write(topic, message)
     finally:
         if own:
             writer.close()

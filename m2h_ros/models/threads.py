@@ -13,11 +13,17 @@ measured here (docs/separator.md, Inference speed).
 Usage (``torch.set_num_threads`` is process-wide, so set it once per run, not per step)::
 
     torch.set_num_threads(inference_threads(batch_size))
+
+``torch_threads(n)`` sets it for one block and puts it back (a switch costs well under a microsecond).
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import torch
 
 from m2h_ros.errors import ConfigError
 
@@ -40,3 +46,16 @@ def inference_threads(batch_size: int, *, cpus: int | None = None) -> int:
     if not isinstance(cpus, int) or isinstance(cpus, bool) or cpus < 1:
         raise ConfigError(f"cpus must be a positive int, got {cpus!r}")
     return 1 if batch_size <= SINGLE_THREAD_MAX_BATCH else cpus
+
+
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Run the block with ``n`` torch intra-op threads, then restore the process's count."""
+    before = torch.get_num_threads()
+    if n != before:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        if n != before:
+            torch.set_num_threads(before)

@@ -11,6 +11,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
+from m2h_ros.allocator import keep_freed_blocks
 from m2h_ros.errors import M2HError
 from m2h_ros.ros.executor import StepExecutor
 
@@ -21,6 +22,7 @@ class RunFinished(Exception):
 
 def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     """Build and spin ``node_type`` until shutdown; exit code 2 on a configuration/data/pipeline error."""
+    keep_freed_blocks()  # each step's messages are above glibc's initial mmap threshold
     rclpy.init(args=args)
     node = None
     code = 0

@@ -73,6 +73,7 @@ from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_inputs, save_policy  # noqa: E402
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
+from m2h_ros.allocator import keep_freed_blocks  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 
@@ -97,6 +98,7 @@ KINDS = {
 }
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
+SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
 
 
 @dataclass(frozen=True)
@@ -255,9 +257,17 @@ def gae(rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, next_v
     return advantages
 
 
-def _sliced(magnitude: np.ndarray, n_slices: int) -> np.ndarray:
-    """(B, F, T) monaural magnitude -> a copy (B, S, F / S, T) (the caller's array changes in place)."""
-    return to_slices(magnitude[:, None], n_slices=n_slices).copy()
+def _sliced(magnitude: np.ndarray, n_slices: int) -> torch.Tensor:
+    """(B, F, T) monaural magnitude -> a copy (B, S, F / S, T) (the caller's array changes in place), in
+    channels_last: f^R's convolutions train ~12% faster in it."""
+    return torch.from_numpy(to_slices(magnitude[:, None], n_slices=n_slices)).contiguous(
+        memory_format=torch.channels_last)
+
+
+def _poses(obs: dict, rows: np.ndarray | None = None) -> list[tuple[int, int]]:
+    """(node, heading) of each slot (``rows``): the separator's cache keys (one clip per pose and episode)."""
+    nodes, headings = (obs["node"], obs["heading"]) if rows is None else (obs["node"][rows], obs["heading"][rows])
+    return list(zip(nodes.tolist(), headings.tolist(), strict=True))
 
 
 def _to_tensors(values: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
@@ -330,6 +340,7 @@ class PPOTrainer:
         else:
             self.device = torch.device("cpu")
         torch.set_num_threads(config.threads)
+        keep_freed_blocks()  # the update's large temporaries: reused, not mapped afresh (m2h_ros/allocator.py)
         torch.manual_seed(config.seed)
         self.policy_config = config.policy_config()
         self.net = PolicyNet(self.policy_config).to(self.device)
@@ -348,7 +359,9 @@ class PPOTrainer:
         env_config = dataclasses.replace(config.env, seed=config.env.seed + self.rank)
         self.env = BatchEnv(self.episodes, library, n_envs=config.n_envs, config=env_config,
                             rir_cache_dir=rir_cache_dir, threads=config.threads)
-        self.runner = SeparatorRunner(self.loaded, config.n_envs)
+        # Microphone noise makes every observation new: nothing to reuse then.
+        self.runner = SeparatorRunner(self.loaded, config.n_envs,
+                                      pose_cache=0 if config.env.mic_noise > 0 else SEPARATOR_POSE_CACHE)
         self.actions = torch.from_numpy(self.policy_config.env_actions())
         self.generator = torch.Generator().manual_seed(config.seed * 1_000_003 + self.rank)
         self.rng = np.random.default_rng([config.seed, self.rank])
@@ -370,7 +383,8 @@ class PPOTrainer:
         self.visits = np.zeros((n, self.env.max_nodes), np.int64)
         self.visits[np.arange(n), self.obs["node"]] = 1
         self.last_classes = self._classes()
-        self.separation = self.runner.step(self.obs["audio"], self.last_classes, np.ones(n, bool))
+        self.separation = self.runner.step(self.obs["audio"], self.last_classes, np.ones(n, bool),
+                                           keys=_poses(self.obs))
         self.nmse_now = nmse(self.separation.refined, self.target_mag)
         self.final_nmse = np.zeros(n)
 
@@ -405,10 +419,9 @@ class PPOTrainer:
             rollout.values.append(out.value.cpu())
             rollout.starts.append(starts)
             if self.refining:
-                memory = self.runner.memory.cpu().clone()
-                rollout.memory.append(memory)
-                rollout.monaural.append(torch.from_numpy(_sliced(self.separation.monaural, s)))
-                rollout.target.append(torch.from_numpy(_sliced(self.target_mag, s)))
+                rollout.memory.append(self.runner.memory.cpu().clone(memory_format=torch.channels_last))
+                rollout.monaural.append(_sliced(self.separation.monaural, s))
+                rollout.target.append(_sliced(self.target_mag, s))
             tock = time.perf_counter()
             self.times[2] += tock - tick
 
@@ -420,9 +433,10 @@ class PPOTrainer:
             ended = np.flatnonzero(done)
             classes, final = self._classes(), None
             if len(ended):
-                final = self.runner.step(info["final_observation"]["audio"][ended], self.last_classes[ended],
-                                         np.zeros(len(ended), bool), rows=ended)
-            separation = self.runner.step(obs["audio"], classes, done)
+                final_obs = info["final_observation"]
+                final = self.runner.step(final_obs["audio"][ended], self.last_classes[ended],
+                                         np.zeros(len(ended), bool), rows=ended, keys=_poses(final_obs, ended))
+            separation = self.runner.step(obs["audio"], classes, done, keys=_poses(obs))
             reward = self._reward(obs, info, env_reward, separation, final, ended)
             self.last_classes = classes
             self.times[1] += time.perf_counter() - tick
@@ -537,8 +551,10 @@ class PPOTrainer:
     def _update_refiner(self, rollout: _Rollout) -> float:
         """L1 of f^R(f^M estimate, stored memory) to the ground-truth magnitude (f^B, f^M frozen)."""
         cfg, dev = self.config, self.device
-        monaural, memory = torch.stack(rollout.monaural), torch.stack(rollout.memory)
-        target, starts = torch.stack(rollout.target), torch.stack(rollout.starts)
+        # Time-major flat (T * N, ...), channels_last kept; rows t * N + slot.
+        monaural, memory = torch.cat(rollout.monaural), torch.cat(rollout.memory)
+        target, starts = torch.cat(rollout.target), torch.stack(rollout.starts)
+        steps = torch.arange(cfg.n_steps)[:, None] * cfg.n_envs
         params = list(self.separator.refiner.parameters())
         per_batch = cfg.n_envs // cfg.n_minibatches
         total, count = 0.0, 0
@@ -546,10 +562,10 @@ class PPOTrainer:
             order = self.rng.permutation(cfg.n_envs)
             for b in range(cfg.n_minibatches):
                 slots = torch.from_numpy(order[b * per_batch: (b + 1) * per_batch])
-                refined = self.separator.refine(monaural[:, slots].flatten(0, 1).to(dev),
-                                                memory[:, slots].flatten(0, 1).to(dev),
+                rows = (steps + slots[None]).flatten()  # = [:, slots].flatten(0, 1) of (T, N, ...)
+                refined = self.separator.refine(monaural[rows].to(dev), memory[rows].to(dev),
                                                 starts[:, slots].flatten().to(dev))
-                loss = F.l1_loss(refined, target[:, slots].flatten(0, 1).to(dev))
+                loss = F.l1_loss(refined, target[rows].to(dev))
                 self.refiner_optimizer.zero_grad()
                 loss.backward()
                 self._step(self.refiner_optimizer, params)

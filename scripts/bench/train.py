@@ -9,8 +9,10 @@ separator, the full sound library) on near-target (far-target for navigation kin
 whose RIR banks must be built (they are what the lead builds for evaluation). RIR banks and camera
 views are loaded before timing and the first update is a warm-up; the figure is the median over the
 remaining updates, with the process's CPU time per env step (all threads: what the steps cost
-whatever the load). The load average before and after each repeat is printed: on a shared machine
-the steps/s are only as good as the cores were free.
+whatever the load), and the share of separated observations whose f^B / f^M outputs the rollout
+reused (a slot back at a pose it has heard this episode: ``SeparatorRunner``'s pose cache). The load
+average before and after each repeat is printed: on a shared machine the steps/s are only as good as
+the cores were free.
 """
 
 from __future__ import annotations
@@ -59,12 +61,15 @@ def main() -> None:
                 history = trainer.run(stop_after=args.updates).history[1:]
             finally:
                 trainer.env.close()
+            runner = trainer.runner
+            reused = runner.cache_hits / max(runner.cache_hits + runner.cache_misses, 1)
         sps = [h["sps"] for h in history]
         cpu = np.median([h["cpu_ms_per_step"] for h in history])
         shares = {p: np.median([h[f"{p}_share"] for h in history]) for p in TIMED_PARTS}
         print(f"repeat {repeat + 1}: {np.median(sps):.0f} env steps/s (updates {', '.join(f'{s:.0f}' for s in sps)}), "
               f"{cpu:.1f} CPU ms per env step (all threads); "
               + ", ".join(f"{p} {100 * v:.0f}%" for p, v in shares.items())
+              + f"; f^B/f^M reused for {100 * reused:.0f}% of the separated observations"
               + f"; load average {before:.1f} -> {os.getloadavg()[0]:.1f}")
 
 

@@ -50,6 +50,15 @@ def test_replay_equals_live(near_bag):
     assert replay.stats.complete
 
 
+def test_estimates_logged_episodes_late_are_still_scored(tmp_path):
+    # The separator and evaluator trail the sim by up to max_evaluator_lag (64) observations: here the
+    # estimates of an episode come 4 episodes (20 observations) after its own observations.
+    live = write_synthetic_run(tmp_path / "bag", SyntheticRun(episodes=6, max_steps=4, camera=False, estimate_lag=20))
+    replay = replay_bag(tmp_path / "bag")
+    assert replay.ok and replay.problems == []
+    same_results(replay.results, live)
+
+
 def test_batch_size_does_not_change_scores(near_bag):
     bag, live = near_bag
     for batch in (1, 3):

@@ -107,6 +107,14 @@ def test_area_downsample_averages_blocks():
     rgb[0, 0, 0] = 200
     out = area_downsample(rgb, 2)
     assert out.shape == (1, 3, 2, 2) and out[0, 0, 0, 0] == 125 and out[0, 2, 1, 1] == 0 and out.dtype == torch.uint8
+    rng = np.random.default_rng(0)
+    for shape, size in (((3, 128, 128, 3), 64), ((2, 96, 96, 3), 32), ((2, 64, 128, 3), 32)):
+        rgb = rng.integers(0, 256, shape, np.uint8)
+        image = torch.from_numpy(rgb).permute(0, 3, 1, 2).float()
+        expected = torch.round(torch.nn.functional.avg_pool2d(image, (shape[1] // size, shape[2] // size)))
+        out = area_downsample(rgb, size)
+        assert torch.equal(out, expected.to(torch.uint8)), shape  # bit for bit, incl. 3 x 3 blocks, ties
+        assert out.is_contiguous(memory_format=torch.channels_last)
     with pytest.raises(ConfigError, match="multiple"):
         area_downsample(np.zeros((1, 5, 5, 3), np.uint8), 2)
     with pytest.raises(ConfigError, match="too small"):
@@ -132,3 +140,51 @@ def test_checkpoint_round_trip_and_errors(tmp_path):
         load_policy(separator)
     with pytest.raises(CheckpointError, match="not found"):
         load_policy(tmp_path / "none.pt")
+
+
+@pytest.mark.parametrize("kind", ["quality", "navigation"])
+def test_shipped_policies_act_as_with_nchw_convolutions(kind):
+    """The encoders compute in channels_last (the speed path); a checkpoint trained before gives the
+    numbers of the NCHW path it was trained with, to float tolerance, in a step and over a sequence."""
+    from pathlib import Path  # noqa: PLC0415
+
+    import m2h_ros.models.policy as policy_module  # noqa: PLC0415
+
+    net = load_policy(Path(policy_module.__file__).parent / "default" / f"policy_{kind}.pt").net
+    t, n = 6, 4
+    inputs = random_inputs(net.config, t * n, seed=5)
+    starts = torch.zeros(t, n, dtype=torch.bool)
+    starts[0], starts[2, 1] = True, True
+    hidden0 = torch.randn(n, net.config.hidden, generator=torch.Generator().manual_seed(1))
+    assert not inputs.audio.is_contiguous(memory_format=torch.channels_last)  # the encoder converts it
+    with torch.no_grad():
+        fast_step = net.step(inputs.index(slice(0, n)), hidden0, starts[0])
+        fast = net.evaluate(inputs, hidden0, starts)
+        cl = PolicyInputs(*(x.contiguous(memory_format=torch.channels_last) for x in inputs))
+        already = net.evaluate(cl, hidden0, starts)
+        original = policy_module.ConvEncoder.forward
+        try:
+            policy_module.ConvEncoder.forward = lambda self, x: self.cnn(x.contiguous())  # the NCHW path
+            slow_step = net.step(inputs.index(slice(0, n)), hidden0, starts[0])
+            slow = net.evaluate(inputs, hidden0, starts)
+        finally:
+            policy_module.ConvEncoder.forward = original
+    for a, b in ((fast_step, slow_step), (fast, slow), (already, slow)):
+        torch.testing.assert_close(a.logits, b.logits, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(a.value, b.value, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(a.hidden, b.hidden, rtol=1e-4, atol=1e-5)
+    assert torch.equal(already.logits, fast.logits)
+
+
+def test_policy_inputs_are_channels_last():
+    """What the rollout stores and the update stacks is already in the encoders' layout (no copy)."""
+    config = PolicyConfig.preset("compact")
+    rng = np.random.default_rng(0)
+    inputs = policy_inputs(config, separated_binaural=rng.random((2, 2, 512, 32), np.float32),
+                           monaural=rng.random((2, 512, 32), np.float32), refined=rng.random((2, 512, 32), np.float32),
+                           audio=None, target_class=np.zeros(2, np.int64),
+                           rgb=rng.integers(0, 256, (2, 128, 128, 3), np.uint8))
+    for x in inputs:
+        assert x.is_contiguous(memory_format=torch.channels_last)
+    stacked = PolicyInputs(*(torch.stack([x, x]) for x in inputs)).flat()
+    assert all(x.is_contiguous(memory_format=torch.channels_last) for x in stacked)

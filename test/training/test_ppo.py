@@ -109,3 +109,79 @@ def test_av_navigator_and_novelty_train_with_the_camera(fast_env, separator_path
         assert np.isfinite(result.history[-1]["value_loss"]) and not (tmp_path / kind / "separator.pt").exists()
         if kind == "novelty":  # every step is rewarded 1/sqrt(n) for some n >= 1, so returns are positive
             assert 0 < result.history[-1]["return_window"] <= STEPS
+
+
+def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folder_library, tmp_path, monkeypatch):
+    """The update's speed paths (channels_last encoders and f^R rows, the GRU over reset-free stretches)
+    give the losses and weights of the plain ones (NCHW, one GRU call per step, f^R's minibatches as
+    ``[:, slots].flatten(0, 1)`` of the stacked rollout) to float tolerance; 2 minibatches, camera on."""
+    import copy  # noqa: PLC0415
+
+    import torch.nn.functional as F  # noqa: PLC0415
+
+    from m2h_ros.models import policy as policy_module  # noqa: PLC0415
+
+    env = dataclasses.replace(fast_env, camera=True, camera_config=CameraConfig(width=64, height=64))
+    config = tiny(env, separator_path, n_envs=4, n_minibatches=2, preset="compact", n_steps=STEPS + 2)
+    trainer = PPOTrainer(config, folder_library, out_dir=tmp_path, progress=False)
+    try:
+        trainer._begin()
+        rollout, next_value, _ = trainer._collect()  # episodes end and start inside it
+    finally:
+        trainer.env.close()
+    assert torch.stack(rollout.starts)[1:].any()  # a cut inside the sequence
+    # The tiny refiner's last conv is zero (memory = estimate): make memory and refiner matter.
+    g = torch.Generator().manual_seed(0)
+    rollout.memory = [m * torch.rand(m.shape, generator=g).contiguous(memory_format=torch.channels_last) * 2
+                      for m in rollout.memory]
+    with torch.no_grad():
+        torch.nn.init.normal_(trainer.separator.refiner.body[-1].weight, std=0.1, generator=g)
+    start = copy.deepcopy((trainer.net.state_dict(), trainer.optimizer.state_dict(),
+                           trainer.separator.refiner.state_dict(), trainer.refiner_optimizer.state_dict()))
+    rng_state = copy.deepcopy(trainer.rng.bit_generator.state)
+
+    def run(update_refiner):
+        trainer.net.load_state_dict(start[0])
+        trainer.optimizer.load_state_dict(start[1])
+        trainer.separator.refiner.load_state_dict(start[2])
+        trainer.refiner_optimizer.load_state_dict(start[3])
+        trainer.rng.bit_generator.state = copy.deepcopy(rng_state)
+        losses = trainer._update_policy(rollout, next_value)
+        losses["refiner_l1"] = update_refiner()
+        return losses, copy.deepcopy((trainer.net.state_dict(), trainer.separator.refiner.state_dict()))
+
+    def plain_refiner():  # the update as it was written before, on NCHW tensors
+        monaural, memory = torch.stack(rollout.monaural).contiguous(), torch.stack(rollout.memory).contiguous()
+        target, starts = torch.stack(rollout.target).contiguous(), torch.stack(rollout.starts)
+        params, per_batch, total = list(trainer.separator.refiner.parameters()), 2, []
+        for _ in range(config.refiner_epochs):
+            order = trainer.rng.permutation(config.n_envs)
+            for b in range(2):
+                slots = torch.from_numpy(order[b * per_batch: (b + 1) * per_batch])
+                refined = trainer.separator.refine(monaural[:, slots].flatten(0, 1), memory[:, slots].flatten(0, 1),
+                                                   starts[:, slots].flatten())
+                loss = F.l1_loss(refined, target[:, slots].flatten(0, 1))
+                trainer.refiner_optimizer.zero_grad()
+                loss.backward()
+                trainer._step(trainer.refiner_optimizer, params)
+                total.append(loss.item())
+        return float(np.mean(total))
+
+    def plain_recur(self, features, hidden, starts):
+        outputs = []
+        for t in range(features.shape[0]):
+            hidden = hidden * (~starts[t]).unsqueeze(1).to(hidden.dtype)
+            out, h = self.gru(features[t: t + 1], hidden.unsqueeze(0))
+            hidden = h[0]
+            outputs.append(out[0])
+        return torch.stack(outputs), hidden
+
+    fast_losses, fast_weights = run(lambda: trainer._update_refiner(rollout))
+    monkeypatch.setattr(policy_module.ConvEncoder, "forward", lambda self, x: self.cnn(x.contiguous()))
+    monkeypatch.setattr(policy_module.PolicyNet, "_recur", plain_recur)
+    plain_losses, plain_weights = run(plain_refiner)
+    assert fast_losses == pytest.approx(plain_losses, rel=1e-4, abs=1e-6)
+    for fast, plain in zip(fast_weights, plain_weights, strict=True):
+        for name, tensor in plain.items():
+            torch.testing.assert_close(fast[name], tensor, rtol=1e-4, atol=1e-6, msg=name)
+    assert any(not torch.equal(t, start[0][n]) for n, t in fast_weights[0].items())  # the update did move them
