@@ -44,12 +44,12 @@ import numpy as np
 from gymnasium import spaces
 from scipy import fft as sfft
 
+from m2h_ros.allocator import keep_freed_blocks
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, stft
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.camera import CameraConfig, CameraViews
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode, scene_at
-from m2h_ros.core.world.heap import retain_freed_memory
 from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.rir_spectra import RirSpectra
@@ -114,7 +114,7 @@ class _PoseCache:
 
     One array per render made each episode's renders fresh heap memory, which glibc hands back to
     the system when a reset frees them all at once; the next episode then paid ~160 page faults
-    per render (docs/simulator.md; ``heap.retain_freed_memory`` keeps such memory too).
+    per render (docs/simulator.md; ``allocator.keep_freed_blocks`` keeps such memory too).
     """
 
     def __init__(self, capacity: int, n_samples: int, spectrogram_shape: tuple[int, int], *,
@@ -178,8 +178,8 @@ class BatchEnv:
     (many clips at few poses); random-action episodes over the test scenes hit it only ~15% of the
     time at 256 MiB, where its memory traffic costs more than it saves (docs/simulator.md).
     ``prepare()`` fills the RIR banks and view caches. Constructing one sets glibc's malloc to keep
-    freed memory for the whole process (``heap.retain_freed_memory``: a few MiB freed and taken
-    back every step otherwise cost page faults).
+    freed memory for the whole process (``m2h_ros.allocator.keep_freed_blocks``: a few MiB freed and
+    taken back every step otherwise cost page faults).
     """
 
     def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, n_envs: int,
@@ -210,7 +210,7 @@ class BatchEnv:
                 or not 0 <= rir_spectra_mib < np.inf:
             raise ConfigError(f"rir_spectra_mib={rir_spectra_mib!r} must be a finite number >= 0")
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
-        retain_freed_memory()   # process-wide: glibc keeps freed memory instead of re-faulting it
+        keep_freed_blocks()   # process-wide: glibc keeps freed memory instead of re-faulting it
         self.n_samples = config.stft.clip_samples
         self.max_sources = max(len(e.source_nodes) for e in self.episodes)
         self.max_nodes = max(scene_at(*k).grid.n_nodes for k in {_scene_key(e) for e in self.episodes})
