@@ -385,6 +385,8 @@ class PPOTrainer:
         self.last_classes = self._classes()
         self.separation = self.runner.step(self.obs["audio"], self.last_classes, np.ones(n, bool),
                                            keys=_poses(self.obs))
+        # The memory each slot's current estimate was refined with (all slots start afresh here).
+        self.previous_memory = torch.zeros_like(self.runner.memory)
         self.nmse_now = nmse(self.separation.refined, self.target_mag)
         self.final_nmse = np.zeros(n)
 
@@ -419,7 +421,9 @@ class PPOTrainer:
             rollout.values.append(out.value.cpu())
             rollout.starts.append(starts)
             if self.refining:
-                rollout.memory.append(self.runner.memory.cpu().clone(memory_format=torch.channels_last))
+                # f^R learns what acting computed: refine(estimate_t, memory before step t), not the
+                # memory after it (that is refined_t itself).
+                rollout.memory.append(self.previous_memory.cpu().clone(memory_format=torch.channels_last))
                 rollout.monaural.append(_sliced(self.separation.monaural, s))
                 rollout.target.append(_sliced(self.target_mag, s))
             tock = time.perf_counter()
@@ -436,6 +440,7 @@ class PPOTrainer:
                 final_obs = info["final_observation"]
                 final = self.runner.step(final_obs["audio"][ended], self.last_classes[ended],
                                          np.zeros(len(ended), bool), rows=ended, keys=_poses(final_obs, ended))
+            previous_memory = self.runner.memory.clone()  # what refines this observation's estimate
             separation = self.runner.step(obs["audio"], classes, done, keys=_poses(obs))
             reward = self._reward(obs, info, env_reward, separation, final, ended)
             self.last_classes = classes
@@ -453,6 +458,7 @@ class PPOTrainer:
             rollout.rewards.append(torch.from_numpy(reward.astype(np.float32)))
             rollout.dones.append(torch.from_numpy(done.copy()))
             self.obs, self.separation, self.starts = obs, separation, done.copy()
+            self.previous_memory = previous_memory
             self.env_steps += cfg.n_envs * self.world
         tick = time.perf_counter()
         with torch.no_grad():
@@ -589,7 +595,8 @@ class PPOTrainer:
             "generator": self.generator.get_state(), "rng": self.rng.bit_generator.state,
             "env": self.env.state(),
             "obs": _to_tensors(self.obs), "separation": _to_tensors(dataclasses.asdict(sep)),
-            "memory": self.runner.memory.cpu(), "hidden": self.hidden.cpu(),
+            "memory": self.runner.memory.cpu(), "previous_memory": self.previous_memory.cpu(),
+            "hidden": self.hidden.cpu(),
             "episode": _to_tensors({"starts": self.starts, "returns": self.returns, "lengths": self.lengths,
                                     "target_mag": self.target_mag, "visits": self.visits,
                                     "nmse_now": self.nmse_now, "final_nmse": self.final_nmse,
@@ -616,6 +623,10 @@ class PPOTrainer:
         self.obs = _to_arrays(state["obs"])
         self.separation = SeparationStep(**_to_arrays(state["separation"]))
         self.runner.memory = state["memory"].to(self.device)
+        if "previous_memory" not in state:
+            raise CheckpointError(f"{self.resume_path} was written before f^R's training memory was fixed; "
+                                  f"use another --out or --fresh")
+        self.previous_memory = state["previous_memory"].to(self.device)
         self.hidden = state["hidden"].to(self.device)
         episode = _to_arrays(state["episode"])
         for key in ("starts", "returns", "lengths", "target_mag", "visits", "nmse_now", "final_nmse", "last_classes"):

@@ -62,6 +62,31 @@ def test_quality_rewards_telescope_to_the_episode_nmse_change(fast_env, separato
     assert np.all(first > 0) and np.all(np.isfinite(total))
 
 
+def test_the_refiner_learns_from_the_memory_acting_used(fast_env, separator_path, folder_library, tmp_path):
+    trainer = PPOTrainer(tiny(fast_env, separator_path, n_steps=2 * STEPS), folder_library, out_dir=tmp_path,
+                         progress=False)
+    acting = []  # the refined estimate of each observation the policy acted on (not episodes' final ones)
+    step = trainer.runner.step
+
+    def recording(*args, **kwargs):
+        result = step(*args, **kwargs)
+        if "rows" not in kwargs:
+            acting.append(np.array(result.refined))
+        return result
+
+    trainer.runner.step = recording
+    try:
+        trainer._begin()
+        rollout, _, _ = trainer._collect()
+    finally:
+        trainer.env.close()
+    starts = torch.stack(rollout.starts)
+    continued = [(t, slot) for t in range(1, len(rollout.memory)) for slot in range(2) if not starts[t, slot]]
+    assert len(continued) >= STEPS
+    for t, slot in continued:  # the memory stored with observation t is the estimate of t - 1
+        np.testing.assert_array_equal(rollout.memory[t][slot].reshape(-1).numpy(), acting[t - 1][slot].reshape(-1))
+
+
 def test_training_writes_checkpoints_and_resumes_exactly(fast_env, separator_path, folder_library, tmp_path):
     config = tiny(fast_env, separator_path)
     whole = train(config, folder_library, out_dir=tmp_path / "whole", progress=False, command="test")
