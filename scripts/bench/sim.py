@@ -8,8 +8,9 @@ under data_dir() first and reports their size per scene (and the build time of w
 --fresh-build also times a full build of every scene into a temporary cache with
 scripts/bench/acoustics.py. Sound library: the full default
 one if it is built, else the --small one (built if missing); the output says which. Each throughput
-case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS and the
-load average before it (other jobs on the cores slow every figure). Then the cost of a fresh render:
+case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, its
+minor page faults per env step and the load average before it (other jobs on the cores slow every
+figure). Then the cost of a fresh render:
 CPU per env step of 16 envs that render every step (no pose cache, camera on, 1 thread) beside the
 bare FFT work such a step needs (RIR rffts, inverse FFTs, STFT), timed in the same process, best of 5
 blocks each. Last, the sanity figure:
@@ -101,13 +102,14 @@ def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: 
     for batch in actions[:20]:
         env.step(batch)
     wall, cpu = time.perf_counter(), time.process_time()
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for batch in actions[20:]:
         env.step(batch)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    usage = resource.getrusage(resource.RUSAGE_SELF)
     env.close()
-    queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps),
-               resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, env.pose_cache_hit_rate,
-               env.rir_spectra_hit_rate))
+    queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps), usage.ru_maxrss / 1024,
+               env.pose_cache_hit_rate, env.rir_spectra_hit_rate, (usage.ru_minflt - faults) / (n_envs * steps)))
 
 
 def _best_cpu_ms(work, repeats: int = 5) -> float:
@@ -209,12 +211,12 @@ def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_co
                 load = os.getloadavg()[0]
                 runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads, args.pose_cache,
                                          args.rir_spectra_mib, acoustics, episode_config), load))
-            rate, cpu_ms, rss, hit_rate, spectra_rate, load = zip(*runs)
+            rate, cpu_ms, rss, hit_rate, spectra_rate, faults, load = zip(*runs)
             rates[n_envs, camera] = np.median(rate)
             print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: "
                   f"{' / '.join(f'{r:.0f}' for r in rate)} env steps/s (aggregate; median {np.median(rate):.0f}, "
                   f"spread {min(rate):.0f}-{max(rate):.0f}), {min(cpu_ms):.2f}-{max(cpu_ms):.2f} ms CPU per "
-                  f"env step, pose-cache hits {100 * hit_rate[0]:.0f}%, RIR spectrum hits "
+                  f"env step, {max(faults):.1f} page faults per env step, pose-cache hits {100 * hit_rate[0]:.0f}%, RIR spectrum hits "
                   f"{100 * spectra_rate[0]:.0f}%, peak RSS {max(rss):.0f} MiB, load average before "
                   f"{' / '.join(f'{x:.1f}' for x in load)}")
     print(f"  16 batched / 1 env, camera on: {rates[16, True] / rates[1, True]:.1f}x (medians)")

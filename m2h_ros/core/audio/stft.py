@@ -155,8 +155,10 @@ def stft(waveform: np.ndarray, *, config: StftConfig = DEFAULT_STFT) -> np.ndarr
     step = x.strides[-1]
     frames = np.lib.stride_tricks.as_strided(x, (*x.shape[:-1], n_frames, config.n_fft),
                                              (*x.strides[:-1], config.hop_length * step, step), writeable=False)
-    spec = scipy.fft.rfft(frames * _cached_window(config, x.dtype), axis=-1)
-    return np.swapaxes(spec, -1, -2)
+    # Transformed along the frame axis of the transposed frames, so that the result comes out
+    # C-contiguous in the (..., F, T) layout (same numbers): a swapped view would make every later
+    # elementwise pass into (..., F, T) arrays (|X|, log) strided, ~5x slower.
+    return scipy.fft.rfft(np.swapaxes(frames * _cached_window(config, x.dtype), -1, -2), axis=-2)
 
 
 def istft(spec: np.ndarray, *, config: StftConfig = DEFAULT_STFT, length: int | None = None) -> np.ndarray:

@@ -189,6 +189,16 @@ class CameraViews:
     def views(self, nodes, headings) -> tuple[np.ndarray, np.ndarray]:
         """RGB (B, H, W, 3) uint8 and depth (B, H, W) float32 for arrays of nodes and headings."""
         nodes = np.asarray(nodes, dtype=np.int64).reshape(-1)
+        cfg = self.config
+        rgb = np.empty((len(nodes), cfg.height, cfg.width, 3), np.uint8)
+        depth = np.empty((len(nodes), cfg.height, cfg.width), np.float32)
+        self.copy_views(nodes, headings, rgb, depth, range(len(nodes)))
+        return rgb, depth
+
+    def copy_views(self, nodes, headings, rgb: np.ndarray, depth: np.ndarray, rows) -> None:
+        """Write the views of (nodes[i], headings[i]) into rgb[rows[i]] and depth[rows[i]] (one copy
+        each: a batch gathered with a fancy index and then scattered would copy every image twice)."""
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1)
         headings = np.asarray(headings, dtype=np.int64).reshape(-1)
         if nodes.shape != headings.shape:
             raise ConfigError(f"nodes {nodes.shape} and headings {headings.shape} differ in shape")
@@ -197,7 +207,8 @@ class CameraViews:
             raise ConfigError(f"node must be in [0, {n}) and heading in [0, 4) "
                               f"(got nodes {nodes.tolist()}, headings {headings.tolist()})")
         self._ensure(nodes, headings)
-        return self._rgb[nodes, headings], self._depth[nodes, headings]
+        for row, node, heading in zip(rows, nodes.tolist(), headings.tolist()):
+            rgb[row], depth[row] = self._rgb[node, heading], self._depth[node, heading]
 
     def view(self, node: int, heading: int) -> tuple[np.ndarray, np.ndarray]:
         rgb, depth = self.views([node], [heading])

@@ -44,6 +44,7 @@ import numpy as np
 from gymnasium import spaces
 from scipy import fft as sfft
 
+from m2h_ros.allocator import keep_freed_blocks
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, stft
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.acoustics import AcousticsConfig
@@ -107,6 +108,51 @@ class _SceneData:
     views: CameraViews | None
 
 
+class _PoseCache:
+    """One slot's renders (and, without microphone noise, spectrograms) of up to ``capacity``
+    poses of its current episode, LRU, in arrays allocated once and reused by every later episode.
+
+    One array per render made each episode's renders fresh heap memory, which glibc hands back to
+    the system when a reset frees them all at once; the next episode then paid ~160 page faults
+    per render (docs/simulator.md; ``allocator.keep_freed_blocks`` keeps such memory too).
+    """
+
+    def __init__(self, capacity: int, n_samples: int, spectrogram_shape: tuple[int, int], *,
+                 spectrograms: bool) -> None:
+        self.capacity = capacity
+        self._shapes = ((capacity, 4, n_samples), (capacity, 2, *spectrogram_shape) if spectrograms else None)
+        self._entries: OrderedDict[tuple[int, int], int] = OrderedDict()
+        self.renders: np.ndarray | None = None        # (capacity, 4, S): target alone, then mixture
+        self.spectrograms: np.ndarray | None = None   # (capacity, 2, F, T) log-magnitudes, or None
+
+    def __contains__(self, key: tuple[int, int]) -> bool:
+        return key in self._entries
+
+    def get(self, key: tuple[int, int]) -> int | None:
+        """The entry of ``key`` (now the most recently used), or None."""
+        entry = self._entries.get(key)
+        if entry is not None:
+            self._entries.move_to_end(key)
+        return entry
+
+    def store(self, key: tuple[int, int], render: np.ndarray) -> int | None:
+        """Keep ``render`` for a new pose, in the least recently used entry when full; its entry
+        (where the caller puts the spectrogram), or None with capacity 0."""
+        if not self.capacity:
+            return None
+        if self.renders is None:
+            self.renders = np.empty(self._shapes[0], np.float32)
+            if self._shapes[1] is not None:
+                self.spectrograms = np.empty(self._shapes[1], np.float32)
+        entry = len(self._entries) if len(self._entries) < self.capacity else self._entries.popitem(last=False)[1]
+        self._entries[key] = entry
+        self.renders[entry] = render
+        return entry
+
+    def clear(self) -> None:
+        self._entries.clear()
+
+
 def _scene_key(episode: Episode) -> tuple[str, str, int]:
     return episode.scene_split, episode.scene_preset, episode.scene_index
 
@@ -121,16 +167,19 @@ class BatchEnv:
     and ``info["final_observation"]`` / ``info["final_info"]`` hold the whole batch as it was before
     those resets. Without it, stepping after an episode ended raises until ``reset()``.
 
-    Speed options that leave every number unchanged: ``threads`` renders contiguous chunks of slots
-    in parallel; ``pose_cache`` keeps, per slot, the renders of up to that many poses of the current
-    episode, so a revisited pose (turning back, Stop in near-target) skips the convolution and STFT
-    (only the microphone noise is drawn anew); ``rir_spectra_mib`` (default 0: off) bounds an LRU of
+    Speed options that leave every number unchanged: ``threads`` render the slots in parallel
+    (each takes the next slot to render, fresh poses first); ``pose_cache`` keeps, per slot, the
+    renders of up to that many poses of the current episode (at most max_steps + 1 are kept), so a
+    revisited pose (turning back, Stop in near-target) skips the convolution and STFT (only the
+    microphone noise is drawn anew); ``rir_spectra_mib`` (default 0: off) bounds an LRU of
     RIR spectra per (scene, source node, receiver node, heading) shared by all slots, so a fresh pose
     whose RIRs were transformed before (by any slot, in any episode) skips their FFTs
     (``RirSpectra``; 192 KiB an entry for 0.5 s RIRs). It pays where poses recur across episodes
     (many clips at few poses); random-action episodes over the test scenes hit it only ~15% of the
     time at 256 MiB, where its memory traffic costs more than it saves (docs/simulator.md).
-    ``prepare()`` fills the RIR banks and view caches.
+    ``prepare()`` fills the RIR banks and view caches. Constructing one sets glibc's malloc to keep
+    freed memory for the whole process (``m2h_ros.allocator.keep_freed_blocks``: a few MiB freed and
+    taken back every step otherwise cost page faults).
     """
 
     def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, n_envs: int,
@@ -161,6 +210,7 @@ class BatchEnv:
                 or not 0 <= rir_spectra_mib < np.inf:
             raise ConfigError(f"rir_spectra_mib={rir_spectra_mib!r} must be a finite number >= 0")
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
+        keep_freed_blocks()   # process-wide: glibc keeps freed memory instead of re-faulting it
         self.n_samples = config.stft.clip_samples
         self.max_sources = max(len(e.source_nodes) for e in self.episodes)
         self.max_nodes = max(scene_at(*k).grid.n_nodes for k in {_scene_key(e) for e in self.episodes})
@@ -178,8 +228,10 @@ class BatchEnv:
         self._current: list[Episode | None] = [None] * b
         self._slot_scene: list[_SceneData | None] = [None] * b
         self._rngs: list[np.random.Generator | None] = [None] * b
-        # Per slot: (node, heading) -> clean renders (+ spectrogram without noise), LRU order.
-        self._pose_cache: list[OrderedDict] = [OrderedDict() for _ in range(b)]
+        # An episode shows at most max_steps + 1 poses: more entries would never be used.
+        capacity = min(self.pose_cache, self.max_episode_steps + 1)
+        self._pose_cache = [_PoseCache(capacity, self.n_samples, (config.stft.n_freq, config.stft.n_frames),
+                                       spectrograms=config.mic_noise == 0) for _ in range(b)]
         self._renders = np.zeros((b, 2), np.int64)   # per slot: pose-cache hits, fresh renders
         self._started = np.zeros(b, np.int64)       # episodes each slot has started since reset(seed)
         self._episode_index = np.full(b, -1, np.int64)
@@ -245,8 +297,7 @@ class BatchEnv:
         if episodes is not None and len(episodes) != self.n_envs:
             raise ConfigError(f"episodes has {len(episodes)} entries for {self.n_envs} slots")
         slots = np.arange(self.n_envs)
-        for slot in slots:
-            self._start(int(slot), None if episodes is None else episodes[slot])
+        self._start_slots(slots, [None] * self.n_envs if episodes is None else episodes)
         obs, info = self._observe(slots)
         info["done"] = np.zeros(self.n_envs, bool)
         return obs, info
@@ -285,17 +336,22 @@ class BatchEnv:
         info.update(done=self._done.copy(), success=success)
         if self.autoreset and self._done.any():
             ended = np.flatnonzero(self._done)
-            final_info = {key: value.copy() for key, value in info.items()}
-            info["final_observation"] = {key: value.copy() for key, value in obs.items()}
-            info["final_info"] = final_info
-            for slot in ended:
-                self._start(int(slot), None)
+            final_obs, final_info = obs, dict(info)
+            self._start_slots(ended, [None] * len(ended))
             fresh_obs, fresh_info = self._observe(ended)
-            for key, value in fresh_obs.items():
-                obs[key][ended] = value
-            for key in ("target_monaural", "target_binaural", "target_delay", "geodesic_distance", "at_target",
-                        "episode_index"):
-                info[key][ended] = fresh_info[key]
+            restarted = ("target_monaural", "target_binaural", "target_delay", "geodesic_distance", "at_target",
+                         "episode_index")
+            if len(ended) == self.n_envs:   # all at once (synchronous episodes): no batch to copy
+                obs = fresh_obs
+                info = {key: fresh_info[key] if key in restarted else value.copy() for key, value in info.items()}
+            else:
+                final_obs = {key: value.copy() for key, value in obs.items()}
+                final_info = {key: value.copy() for key, value in info.items()}
+                for key, value in fresh_obs.items():
+                    obs[key][ended] = value
+                for key in restarted:
+                    info[key][ended] = fresh_info[key]
+            info["final_observation"], info["final_info"] = final_obs, final_info
         return obs, reward, terminated, truncated, info
 
     def prepare(self, *, workers: int = 1, progress: bool = True) -> None:
@@ -330,8 +386,8 @@ class BatchEnv:
             raise ConfigError(f"BatchEnv.restore(): state of {state['n_envs']} slots over {state['n_episodes']} "
                               f"episodes, this env has {self.n_envs} over {len(self.episodes)}")
         self._seed = int(state["seed"])
+        self._start_slots(np.arange(self.n_envs), [int(index) for index in state["episode_index"]])
         for slot in range(self.n_envs):
-            self._start(slot, int(state["episode_index"][slot]))
             self._rngs[slot].bit_generator.state = state["rng"][slot]
         for name in ("started", "node", "heading", "step", "done"):
             getattr(self, f"_{name}")[:] = state[name]
@@ -353,7 +409,19 @@ class BatchEnv:
             data = self._scenes[key] = _SceneData(scene, bank, views)
         return data
 
-    def _start(self, slot: int, episode: Episode | int | None) -> None:
+    def _start_slots(self, slots: np.ndarray, episodes: Sequence[Episode | int | None]) -> None:
+        """Start an episode in each slot (None: its next in order); the clips of all of them are
+        transformed in one FFT (pocketfft does 1-2 rows at a time 2-3x slower per row)."""
+        clips = [self._start(int(slot), episode) for slot, episode in zip(slots, episodes)]
+        spectra = sfft.rfft(np.concatenate(clips), self._n_fft, axis=-1, workers=self.threads)
+        first = 0
+        for slot, count in zip(slots, map(len, clips)):
+            self._clip_spectra[slot, :count] = spectra[first:first + count]
+            first += count
+
+    def _start(self, slot: int, episode: Episode | int | None) -> np.ndarray:
+        """Put ``slot`` at the start of ``episode``; its clips (sources, S) float32, whose spectra the
+        caller stores."""
         if episode is None:
             index = self._episode_for(slot, int(self._started[slot]))
             episode = self.episodes[index]
@@ -387,11 +455,11 @@ class BatchEnv:
         self._target_class[slot] = TARGET_CATEGORIES.index(episode.target_category)
         self._n_sources[slot] = n_sources   # later rows of _sources and _clip_spectra are unused
         self._sources[slot, :n_sources] = episode.source_nodes
-        self._clip_spectra[slot, :n_sources] = sfft.rfft(clips, self._n_fft, axis=-1)
         self._source_weight[slot] = 1.0 / n_sources
         self._target_mono[slot] = clips[0]
         self._rngs[slot] = np.random.default_rng([episode.seed, _NOISE_SALT])
         self._pose_cache[slot].clear()
+        return clips
 
     def _groups(self, slots: np.ndarray):
         """(scene data, rows of ``slots``) for each scene the given slots are in."""
@@ -412,14 +480,18 @@ class BatchEnv:
         """Observation and ground truth of the given slots at their current poses."""
         n, cfg, cam, f = len(slots), self.config, self.config.camera_config, self.config.stft
         node, heading, target = self._node[slots], self._heading[slots], self._target[slots]
-        audio = np.empty((n, 2, self.n_samples), np.float32)
-        target_binaural = np.empty((n, 2, self.n_samples), np.float32)
-        spectrogram = np.empty((n, 2, f.n_freq, f.n_frames), np.float32)
-        # Rows are independent, so contiguous chunks of them render in parallel threads (numpy and
-        # pocketfft release the GIL) with results that do not depend on the chunking.
-        chunks = [c for c in np.array_split(np.arange(n), min(self.threads, n)) if len(c)]
-        jobs = [self._pool.submit(self._render_audio, slots, c[0], c[-1] + 1, audio, target_binaural,
-                                  spectrogram) for c in chunks[1:]] if len(chunks) > 1 else []
+        outputs = (np.empty((n, 2, self.n_samples), np.float32),          # audio
+                   np.empty((n, 2, self.n_samples), np.float32),          # target_binaural
+                   np.empty((n, 2, f.n_freq, f.n_frames), np.float32))    # spectrogram
+        # Rows are independent, so the threads render them in parallel (numpy and pocketfft release
+        # the GIL), taking one row at a time from a shared iterator (next() on it is atomic), fresh
+        # renders first: one costs ~25x a pose-cache hit, so fixed chunks would leave a thread idle
+        # while the other renders. The results do not depend on which thread renders a row.
+        keys = list(zip(node.tolist(), heading.tolist()))
+        fresh = [key not in self._pose_cache[slot] for slot, key in zip(slots.tolist(), keys)]
+        queue = iter(sorted(range(n), key=fresh.__getitem__, reverse=True))   # stable: fresh first
+        jobs = [self._pool.submit(self._render_rows, slots, keys, queue, outputs)
+                for _ in range(min(self.threads, n) - 1)]
         positions = np.empty((n, 2), np.float64)
         geodesic = np.empty(n, np.float32)
         target_distance = np.empty(n, np.float64)
@@ -432,10 +504,11 @@ class BatchEnv:
             geodesic[rows] = grid.geodesic[node[rows], target[rows]]
             target_distance[rows] = np.linalg.norm(grid.positions[target[rows]] - positions[rows], axis=1)
             if cfg.camera:
-                rgb[rows], depth[rows, ..., 0] = data.views.views(node[rows], heading[rows])
-        self._render_audio(slots, chunks[0][0], chunks[0][-1] + 1, audio, target_binaural, spectrogram)
+                data.views.copy_views(node[rows], heading[rows], rgb, depth[..., 0], rows.tolist())
+        self._render_rows(slots, keys, queue, outputs)
         for job in jobs:
             job.result()
+        audio, target_binaural, spectrogram = outputs
         pose = np.column_stack([positions, heading_angle(heading)]).astype(np.float32)
         obs: Observation = {
             "audio": audio, "spectrogram": spectrogram, "pose": pose, "node": node,
@@ -452,88 +525,63 @@ class BatchEnv:
                 "done": np.zeros(n, bool), "success": np.zeros(n, bool)}
         return obs, info
 
-    def _render_audio(self, all_slots: np.ndarray, start: int, stop: int, audio: np.ndarray,
-                      target_binaural: np.ndarray, spectrogram: np.ndarray) -> None:
-        """Fill rows start:stop of the outputs: mixture (+ noise), target alone, log-magnitude STFT.
+    def _render_rows(self, slots: np.ndarray, keys: list[tuple[int, int]], rows,
+                     outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Render the rows that the iterator ``rows`` hands out: mixture (+ noise), target alone,
+        log-magnitude STFT, into ``outputs`` (audio, target_binaural, spectrogram).
 
         Poses an episode already visited come from the slot's pose cache (same numbers); the
         microphone noise is drawn afresh at every step all the same.
         """
+        audio, target_binaural, spectrogram = outputs
         cfg, noisy = self.config, self.config.mic_noise > 0
-        rows = range(start, stop)
-        slots = all_slots[start:stop]
-        keys = list(zip(self._node[slots].tolist(), self._heading[slots].tolist()))
-        missed = []
-        for row, slot, key in zip(rows, slots.tolist(), keys):
-            cached = self._pose_cache[slot].get(key)
-            self._renders[slot, int(cached is None)] += 1   # each slot has one thread
-            if cached is None:
-                missed.append(row)
-                continue
-            self._pose_cache[slot].move_to_end(key)
-            clean, spectrum = cached
-            target_binaural[row], audio[row] = clean[:2], clean[2:]
-            if not noisy:
-                spectrogram[row] = spectrum
-        renders = self._convolve(all_slots[missed])
-        for row, render in zip(missed, renders):
+        for row in rows:
+            slot, key = int(slots[row]), keys[row]
+            cache = self._pose_cache[slot]
+            entry = cache.get(key)
+            self._renders[slot, int(entry is None)] += 1   # each slot is rendered by one thread
+            if entry is None:
+                render = self._convolve(slot)
+                stored = cache.store(key, render)
+            else:
+                render, stored = cache.renders[entry], None
             target_binaural[row], audio[row] = render[:2], render[2:]
-        if noisy:
-            rms = np.sqrt(np.mean(np.square(audio[start:stop]), axis=(1, 2)))
-            for row, slot in zip(rows, slots.tolist()):
+            if noisy:
+                rms = np.sqrt(np.mean(np.square(audio[row])))
                 noise = self._rngs[slot].standard_normal((2, self.n_samples), dtype=np.float32)
-                audio[row] += (cfg.mic_noise * rms[row - start]) * noise
-        fresh = slice(start, stop) if noisy else _as_slice(np.asarray(missed, np.int64))
-        if noisy or missed:
-            # log(1 + |X|) as log(|X| + 1): numpy's float32 log1p is ~5x slower than its log; they
-            # differ by < 1e-6 here. Written straight into the output when its rows are consecutive.
-            out = spectrogram[fresh] if isinstance(fresh, slice) else None
-            magnitude = np.abs(stft(audio[fresh], config=cfg.stft), out=out)
-            magnitude += 1.0
-            np.log(magnitude, out=magnitude)
-            if out is None:
-                spectrogram[fresh] = magnitude
-        if self.pose_cache:
-            for row, render in zip(missed, renders):
-                cache = self._pose_cache[all_slots[row]]
-                cache[keys[row - start]] = render, None if noisy else spectrogram[row].copy()
-                if len(cache) > self.pose_cache:
-                    cache.popitem(last=False)
+                audio[row] += (cfg.mic_noise * rms) * noise
+            if entry is None or noisy:
+                # log(1 + |X|) as log(|X| + 1): numpy's float32 log1p is ~5x slower than its log;
+                # they differ by < 1e-6 here.
+                magnitude = np.abs(stft(audio[row], config=cfg.stft), out=spectrogram[row])
+                magnitude += 1.0
+                np.log(magnitude, out=magnitude)
+                if stored is not None and cache.spectrograms is not None:
+                    cache.spectrograms[stored] = magnitude
+            else:
+                spectrogram[row] = cache.spectrograms[entry]
 
-    def _convolve(self, slots: np.ndarray) -> list[np.ndarray]:
-        """Per slot, (4, S) views: the target alone (rows 0-1), then the clean mixture (rows 2-3)."""
-        requests, counts = [], self._n_sources[slots].tolist()
-        for slot, count in zip(slots.tolist(), counts):
-            bank, node, heading = self._slot_scene[slot].bank, int(self._node[slot]), int(self._heading[slot])
-            requests.extend((bank, source, node, heading) for source in self._sources[slot, :count].tolist())
-        spectra = self._rir_spectra.spectra(requests)
-        renders, first = [], 0
-        # Slot by slot, so that its products (~400 kB) stay in cache from the multiply to the inverse
-        # FFT, which runs on 4 rows at once (pocketfft vectorises over >= 4 rows).
-        for slot, count in zip(slots.tolist(), counts):
-            found, first = spectra[first:first + count], first + count
-            # Convolution in the frequency domain; by linearity the mixture needs one inverse FFT.
-            both = np.empty((4, found[0].shape[-1]), np.complex64)
-            target, mixture = both[:2], both[2:]
-            np.multiply(found[0], self._clip_spectra[slot, 0], out=target)
-            if count == 1:
-                mixture[:] = target
-            for j in range(1, count):
-                if j == 1:   # source 1 + target: the sum over sources, bit for bit
-                    np.multiply(found[1], self._clip_spectra[slot, 1], out=mixture)
-                    mixture += target
-                else:
-                    mixture += found[j] * self._clip_spectra[slot, j]
-            mixture *= self._source_weight[slot]
-            renders.append(sfft.irfft(both, self._n_fft, axis=-1, overwrite_x=True)[:, :self.n_samples])
-        return renders
-
-
-def _as_slice(rows: np.ndarray) -> slice | np.ndarray:
-    """``rows`` as a slice when they are consecutive (indexing then gives views, not copies)."""
-    if len(rows) and rows[-1] - rows[0] == len(rows) - 1:
-        return slice(int(rows[0]), int(rows[-1]) + 1)
-    return rows
+    def _convolve(self, slot: int) -> np.ndarray:
+        """(4, S) view: the slot's target alone at its pose (rows 0-1), then the clean mixture (rows 2-3)."""
+        count, bank = int(self._n_sources[slot]), self._slot_scene[slot].bank
+        node, heading = int(self._node[slot]), int(self._heading[slot])
+        found = self._rir_spectra.spectra([(bank, source, node, heading)
+                                           for source in self._sources[slot, :count].tolist()])
+        # Convolution in the frequency domain; by linearity the mixture needs one inverse FFT, and
+        # target and mixture go through it together (pocketfft vectorises over >= 4 rows).
+        both = np.empty((4, found[0].shape[-1]), np.complex64)
+        target, mixture = both[:2], both[2:]
+        np.multiply(found[0], self._clip_spectra[slot, 0], out=target)
+        if count == 1:
+            mixture[:] = target
+        for j in range(1, count):
+            if j == 1:   # source 1 + target: the sum over sources, bit for bit
+                np.multiply(found[1], self._clip_spectra[slot, 1], out=mixture)
+                mixture += target
+            else:
+                mixture += found[j] * self._clip_spectra[slot, j]
+        mixture *= self._source_weight[slot]
+        return sfft.irfft(both, self._n_fft, axis=-1, overwrite_x=True)[:, :self.n_samples]
 
 
 @lru_cache(maxsize=8)

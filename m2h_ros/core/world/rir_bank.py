@@ -110,29 +110,38 @@ class RirBank:
         rows = self._maps[node] = rows.view(np.ndarray)
         return rows
 
-    def rirs(self, source_nodes, receiver_nodes, headings) -> np.ndarray:
-        """(B, 2, T) float32 binaural RIRs for B (source node, receiver node, heading) triples."""
-        sources = np.asarray(source_nodes, dtype=np.int64).ravel()
-        receivers = np.asarray(receiver_nodes, dtype=np.int64).ravel()
-        heads = np.asarray(headings, dtype=np.int64).ravel()
+    def rirs(self, source_nodes, receiver_nodes, headings, *, out: np.ndarray | None = None) -> np.ndarray:
+        """(B, 2, T) float32 binaural RIRs for B (source node, receiver node, heading) triples.
+
+        ``out``: a (B, 2, >= T) float32 array to write them into (its first T samples; the rest is
+        left as it is, e.g. the zero padding of a convolution buffer); returned.
+        """
+        # Python lists: the env asks for one or two RIRs at a time, where numpy's checks cost more
+        # than the copies.
+        sources, receivers, heads = (np.asarray(values, dtype=np.int64).ravel().tolist()
+                                     for values in (source_nodes, receiver_nodes, headings))
         if not len(sources) == len(receivers) == len(heads):
             raise ConfigError(f"rirs() needs equally long index arrays, got {len(sources)}, "
                               f"{len(receivers)}, {len(heads)}")
         for name, values, limit in (("source", sources, self.n_nodes), ("receiver", receivers, self.n_nodes),
                                     ("heading", heads, 4)):
-            if len(values) and (values.min() < 0 or values.max() >= limit):
+            if values and (min(values) < 0 or max(values) >= limit):
                 raise ConfigError(f"{name} index out of range 0..{limit - 1}: {values}")
-        # Read only the late part and the asked heading's early part, straight into float32.
         n_early, n_taps = self.config.n_early, self.config.n_taps
+        if out is None:
+            out = np.empty((len(sources), 2, n_taps), dtype=np.float32)
+        elif out.dtype != np.float32 or out.ndim != 3 or out.shape[:2] != (len(sources), 2) \
+                or out.shape[2] < n_taps:
+            raise ConfigError(f"rirs(out=...) needs a float32 ({len(sources)}, 2, >= {n_taps}) array, "
+                              f"got {out.dtype} {out.shape}")
+        # Only the late part and the asked heading's early part are read, as contiguous slices
+        # straight into the output (a fancy index would copy them once more).
         late_start = N_HEADINGS * 2 * n_early
-        out = np.empty((len(sources), 2, n_taps), dtype=np.float32)
-        for node in np.unique(sources):
-            where = np.flatnonzero(sources == node)
-            rows = self._source(int(node))
-            out[where] = rows[receivers[where], late_start:].reshape(len(where), 2, n_taps)
-            for item in where:  # contiguous slices: cheaper than a 2-D fancy index
-                start = heads[item] * 2 * n_early
-                out[item, :, :n_early] += rows[receivers[item], start: start + 2 * n_early].reshape(2, n_early)
+        for item, (source, receiver, heading) in enumerate(zip(sources, receivers, heads)):
+            row = self._source(source)[receiver]
+            out[item, :, :n_taps] = row[late_start:].reshape(2, n_taps)
+            start = heading * 2 * n_early
+            out[item, :, :n_early] += row[start: start + 2 * n_early].reshape(2, n_early)
         return out
 
     def size_on_disk(self) -> int:

@@ -41,6 +41,7 @@ class RirSpectra:
         self.hits = self.misses = 0
         self._entries: OrderedDict[tuple[RirBank, int, int, int], np.ndarray] = OrderedDict()
         self._lock = threading.Lock()
+        self._local = threading.local()
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -61,16 +62,19 @@ class RirSpectra:
             self.misses += len(missing)
         if not missing:
             return found
-        # All missing RIRs in one FFT (pocketfft vectorises over >= 4 rows: 2-3x faster than 1-2),
-        # zero-padded here so that the FFT does not copy them once more.
-        rirs = np.zeros((len(missing), 2, self.n_fft), np.float32)
+        # The missing RIRs in one FFT (pocketfft vectorises over >= 4 rows: 2-3x faster than 1-2),
+        # gathered into this thread's zero-padded buffer: only the first n_taps samples are ever
+        # written, so its padding stays zero and needs no clearing (rfft leaves its input as is).
+        rirs = self._buffer(len(missing))
         by_bank: dict[RirBank, list[int]] = {}
-        for row, i in enumerate(missing):
-            by_bank.setdefault(requests[i][0], []).append(row)
-        for bank, rows in by_bank.items():
-            triples = np.asarray([requests[missing[row]][1:] for row in rows], np.int64)
-            rirs[rows, :, :self.n_taps] = bank.rirs(triples[:, 0], triples[:, 1], triples[:, 2])
-        new = sfft.rfft(rirs, axis=-1, overwrite_x=True)
+        for i in missing:
+            by_bank.setdefault(requests[i][0], []).append(i)
+        missing, row = [i for group in by_bank.values() for i in group], 0   # by bank: one gather each
+        for bank, group in by_bank.items():
+            sources, receivers, headings = zip(*(requests[i][1:] for i in group))
+            bank.rirs(sources, receivers, headings, out=rirs[row:row + len(group)])
+            row += len(group)
+        new = sfft.rfft(rirs, axis=-1)
         if not self.capacity:
             for i, spectrum in zip(missing, new):
                 found[i] = spectrum
@@ -84,6 +88,13 @@ class RirSpectra:
             while len(self._entries) > self.capacity:
                 self._entries.popitem(last=False)
         return found
+
+    def _buffer(self, rows: int) -> np.ndarray:
+        """(rows, 2, n_fft) float32 of the calling thread, zero beyond n_taps."""
+        buffer = getattr(self._local, "buffer", None)
+        if buffer is None or len(buffer) < rows:
+            buffer = self._local.buffer = np.zeros((rows, 2, self.n_fft), np.float32)
+        return buffer[:rows]
 
     def clear(self) -> None:
         with self._lock:

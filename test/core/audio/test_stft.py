@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.fft
 import torch
 
 from m2h_ros.core.audio.metrics import si_sdr
@@ -81,6 +82,25 @@ def test_istft_matches_torch_and_inverts(binaural: np.ndarray) -> None:
     torch_default = torch.istft(torch.from_numpy(spec[0, 0]), 1023, 512, 1023, WINDOW, center=True).numpy()
     assert default.shape[-1] == torch_default.shape[-1] == 512 * 31 + 1
     np.testing.assert_allclose(default, binaural[..., : 512 * 31 + 1], atol=1e-5)
+
+
+@pytest.mark.parametrize("config", [DEFAULT_STFT, StftConfig(pad_mode="constant"), StftConfig(center=False),
+                                    StftConfig(n_fft=512, win_length=400, hop_length=160, n_freq_slices=1)])
+@pytest.mark.parametrize("shape", [(16000,), (3, 2, 16000), (2, 1024)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_stft_equals_padded_sliding_window_rfft_bit_for_bit(config: StftConfig, shape: tuple, dtype) -> None:
+    # The straightforward formulation (np.pad, a sliding window, rfft along the last axis, axes
+    # swapped): the faster code must give the same bits, as one C-contiguous (..., F, T) array.
+    x = np.random.default_rng(2).standard_normal(shape).astype(dtype)
+    padded = np.pad(x, [(0, 0)] * (x.ndim - 1) + [(config.n_fft // 2,) * 2], mode=config.pad_mode) \
+        if config.center else x
+    frames = np.lib.stride_tricks.sliding_window_view(padded, config.n_fft, axis=-1)[..., ::config.hop_length, :]
+    expected = np.swapaxes(scipy.fft.rfft(frames * config.window().astype(dtype), axis=-1), -1, -2)
+    got = stft(x, config=config)
+    assert got.dtype == expected.dtype and got.flags.c_contiguous
+    np.testing.assert_array_equal(got, expected)
+    strided = np.repeat(x, 2, axis=-1)[..., ::2]   # a non-contiguous view of the same samples
+    np.testing.assert_array_equal(stft(strided, config=config), expected)
 
 
 def test_stft_rejects_bad_input() -> None:

@@ -231,6 +231,40 @@ def test_rir_spectrum_cache_changes_no_number(near_episodes, small_library, rir_
         BatchEnv(near_episodes, small_library, n_envs=1, rir_spectra_mib=-1.0)
 
 
+@pytest.mark.parametrize("task", ["near_target", "far_target"])
+def test_threads_and_pose_cache_change_no_number_across_resets(task, near_episodes, far_episodes, small_library,
+                                                              rir_cache, config):
+    # Near-target slots all reset together (the no-copy path); far-target ones end on Stop at
+    # different steps (partial resets). Three threads sharing the rows and the pose cache reused
+    # by later episodes against one thread rendering every pose afresh, with microphone noise
+    # and without.
+    episodes = near_episodes if task == "near_target" else far_episodes
+    for noise in (0.0, 0.05):
+        kwargs = dict(n_envs=5, config=dataclasses.replace(config, mic_noise=noise), rir_cache_dir=rir_cache)
+        plain = BatchEnv(episodes, small_library, threads=1, pose_cache=0, **kwargs)
+        fast = BatchEnv(episodes, small_library, threads=3, **kwargs)
+        (obs_a, info_a), (obs_b, info_b) = plain.reset(), fast.reset()
+        rng, resets = np.random.default_rng(9), set()
+        for _ in range(45):
+            for a, b in ((obs_a, obs_b), (info_a, info_b)):
+                assert a.keys() == b.keys()
+                for key in a:
+                    nested = a[key] if isinstance(a[key], dict) else {key: a[key]}
+                    for name, value in nested.items():
+                        other = b[key][name] if isinstance(a[key], dict) else b[key]
+                        np.testing.assert_array_equal(value, other, err_msg=f"{key} {name}")
+            if "final_observation" in info_b:   # the ended episodes' last observation is its own copy
+                resets.add(int(info_b["done"].sum()))
+                for key, value in info_b["final_observation"].items():
+                    assert not np.shares_memory(value, obs_b[key]), key
+            actions = rng.choice([STOP, MOVE_FORWARD, TURN_LEFT, TURN_RIGHT], size=5, p=[0.1, 0.4, 0.25, 0.25])
+            (obs_a, *_, info_a), (obs_b, *_, info_b) = plain.step(actions), fast.step(actions)
+        assert fast.pose_cache_hit_rate > 0.2
+        assert (resets == {5}) if task == "near_target" else (resets - {5})
+        plain.close()
+        fast.close()
+
+
 def test_gymnasium_env_checker(near_episodes, small_library, rir_cache, config):
     check_env(make_env(near_episodes, small_library, rir_cache, config), skip_render_check=True)
 

@@ -44,3 +44,17 @@ def test_no_capacity_keeps_nothing(bank, fast_acoustics):
         RirSpectra(4000, fast_acoustics.n_taps, max_bytes=-1)
     with pytest.raises(ConfigError, match="shorter"):
         RirSpectra(100, fast_acoustics.n_taps, max_bytes=0)
+
+
+def test_rirs_write_into_a_longer_buffer_and_leave_the_rest(bank, fast_acoustics):
+    taps = fast_acoustics.n_taps
+    buffer = np.full((2, 2, taps + 50), 7.0, np.float32)
+    assert bank.rirs([0, 1], [1, 1], [2, 3], out=buffer) is buffer
+    np.testing.assert_array_equal(buffer[..., :taps], bank.rirs([0, 1], [1, 1], [2, 3]))
+    assert (buffer[..., taps:] == 7.0).all()
+    with pytest.raises(ConfigError, match="out"):
+        bank.rirs([0], [1], [2], out=np.zeros((1, 2, taps - 1), np.float32))
+    with pytest.raises(ConfigError, match="out"):
+        bank.rirs([0], [1], [2], out=np.zeros((1, 2, taps), np.float64))
+    with pytest.raises(ConfigError, match="heading"):
+        bank.rirs([0], [1], [4])
