@@ -18,8 +18,8 @@ from __future__ import annotations
 import inspect
 import time
 from contextlib import ExitStack
-from itertools import chain
 
+from rclpy.event_handler import EventHandler
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
@@ -29,20 +29,25 @@ from rclpy.utilities import timeout_sec_to_nsec
 class _Entities:
     """The entities of the executor's nodes, their handles held and one wait set sized for them."""
 
-    def __init__(self, executor: StepExecutor, key: tuple[int, ...]) -> None:
-        self.key = key
+    def __init__(self, executor: StepExecutor) -> None:
         nodes = executor.get_nodes()
         self.subscriptions = [s for n in nodes for s in n.subscriptions]
         self.timers = [t for n in nodes for t in n.timers]
         self.services = [s for n in nodes for s in n.services]
-        self.waitables = [w for n in nodes for w in n.waitables]
+        waitables = [w for n in nodes for w in n.waitables]
+        # QoS event handlers (one per endpoint, rarely ready) are polled through their event handles
+        # directly: their Python add_to_wait_set / is_ready cost more than the rest of a wake-up.
+        self.events = [(w, w._EventHandler__event) for w in waitables
+                       if isinstance(w, EventHandler) and hasattr(w, "_EventHandler__event")]
+        self.waitables = [w for w in waitables if not any(w is e for e, _ in self.events)]
         self.guards = [executor._guard, executor._sigint_gc]
         self.stack = ExitStack()
         for entity in (*self.subscriptions, *self.timers, *self.services, *self.guards):
             self.stack.enter_context(entity.handle)
-        events = 0
-        for waitable in self.waitables:
+        events = len(self.events)
+        for waitable in waitables:
             self.stack.enter_context(waitable)
+        for waitable in self.waitables:
             events += waitable.get_num_entities().num_events
         self.stack.enter_context(executor.context.handle)
         self.supported = _supported(nodes)
@@ -70,17 +75,20 @@ class StepExecutor(SingleThreadedExecutor):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._entities: _Entities | None = None
+        self._entities_changed = True  # rclpy wakes a node's executor whenever it adds or removes an entity
         # Process CPU seconds when the first message arrived: a node's work from there on, without its
         # start-up (imports, models, discovery), is what a pipeline step costs.
         self.cpu_at_first_message: float | None = None
 
+    def wake(self) -> None:
+        self._entities_changed = True
+        super().wake()
+
     def _current_entities(self) -> _Entities:
-        key = tuple(map(id, chain.from_iterable(chain(n.subscriptions, n.timers, n.services, n.waitables,
-                                                       n.clients, n.guards)
-                                                 for n in self.get_nodes())))
-        if self._entities is None or self._entities.key != key:
+        if self._entities is None or self._entities_changed:
             self._release()
-            self._entities = _Entities(self, key)
+            self._entities_changed = False
+            self._entities = _Entities(self)
         return self._entities
 
     def _release(self) -> None:
@@ -105,12 +113,18 @@ class StepExecutor(SingleThreadedExecutor):
             wait_set.add_guard_condition(guard.handle)
         for waitable in entities.waitables:
             waitable.add_to_wait_set(wait_set)
+        event_indices = [wait_set.add_event(event) for _, event in entities.events]
         wait_set.wait(timeout_sec_to_nsec(timeout_sec))
         if self._is_shutdown:
             raise ShutdownException()
         if not self._context.ok():
             raise ExternalShutdownException()
-        for waitable in [w for w in entities.waitables if w.is_ready(wait_set)]:
+        ready = [w for w in entities.waitables if w.is_ready(wait_set)]
+        for (handler, _), index in zip(entities.events, event_indices):
+            if wait_set.is_ready("event", index):
+                handler._ready_to_take_data = True  # what its is_ready() would have set
+                ready.append(handler)
+        for waitable in ready:
             coroutine = waitable.execute(waitable.take_data())
             try:
                 coroutine.send(None)  # QoS event handlers' execute() never awaits

@@ -11,8 +11,12 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 STEP_HISTORY = 128
 STEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STEP_HISTORY, reliability=ReliabilityPolicy.RELIABLE,
                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# Episode info is latched so a node that starts late still learns the current episode.
-LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+# Episode info is latched so a node that starts late still learns the current episode. Deeper than
+# one: the sim may start episodes while the evaluator (and the separator) still work on earlier ones,
+# up to max_evaluator_lag (<= 100) observations behind, i.e. up to 5 near-target episodes; with depth 1
+# a lagging reader lost the info of an episode it had not reached yet, and its steps waited forever.
+EPISODE_HISTORY = 8
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=EPISODE_HISTORY,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # The recorder must accept any publisher: best-effort + volatile is compatible with every offer.
