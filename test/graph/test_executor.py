@@ -29,6 +29,24 @@ def context():
     ctx.try_shutdown()
 
 
+@pytest.fixture
+def spinning(context):
+    """node_of(name) -> (a node, a StepExecutor spinning it); both destroyed after the test."""
+    made = []
+
+    def node_of(name, **node_options):
+        node = Node(name, context=context, **node_options)
+        executor = StepExecutor(context=context)
+        executor.add_node(node)
+        made.append((node, executor))
+        return node, executor
+
+    yield node_of
+    for node, executor in made:
+        executor.shutdown()
+        node.destroy_node()
+
+
 def spin_until(executor, done, timeout=10.0):
     deadline = time.monotonic() + timeout
     while not done() and time.monotonic() < deadline:
@@ -36,10 +54,8 @@ def spin_until(executor, done, timeout=10.0):
     assert done(), "timed out"
 
 
-def test_timer_publishes_and_the_subscription_created_in_a_callback_receives(context):
-    node = Node("step_executor_pubsub", context=context)
-    executor = StepExecutor(context=context)
-    executor.add_node(node)
+def test_timer_publishes_and_the_subscription_created_in_a_callback_receives(spinning):
+    node, executor = spinning("step_executor_pubsub")
     received, ticks = [], []
     publisher = node.create_publisher(Int32, "/step_executor_numbers", 10)
 
@@ -53,14 +69,10 @@ def test_timer_publishes_and_the_subscription_created_in_a_callback_receives(con
     spin_until(executor, lambda: len(received) >= 5)
     assert received == sorted(received) and len(set(received)) == len(received)
     assert executor._entities is not None, "ran rclpy's loop, not its own"
-    executor.shutdown()
-    node.destroy_node()
 
 
-def test_a_callback_error_comes_out_of_spin_once(context):
-    node = Node("step_executor_error", context=context)
-    executor = StepExecutor(context=context)
-    executor.add_node(node)
+def test_a_callback_error_comes_out_of_spin_once(spinning):
+    node, executor = spinning("step_executor_error")
 
     def fail():
         raise ValueError("from the callback")
@@ -68,14 +80,10 @@ def test_a_callback_error_comes_out_of_spin_once(context):
     node.create_timer(0.01, fail)
     with pytest.raises(ValueError, match="from the callback"):
         spin_until(executor, lambda: False, timeout=2.0)
-    executor.shutdown()
-    node.destroy_node()
 
 
-def test_incompatible_qos_reaches_the_event_handler(context):
-    node = Node("step_executor_qos", context=context)
-    executor = StepExecutor(context=context)
-    executor.add_node(node)
+def test_incompatible_qos_reaches_the_event_handler(spinning):
+    node, executor = spinning("step_executor_qos")
     events = []
     node.create_publisher(Int32, "/step_executor_qos", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
     node.create_subscription(Int32, "/step_executor_qos", lambda m: None,
@@ -83,8 +91,6 @@ def test_incompatible_qos_reaches_the_event_handler(context):
                              event_callbacks=SubscriptionEventCallbacks(incompatible_qos=events.append))
     spin_until(executor, lambda: events)
     assert events[0].last_policy_kind.name.endswith("RELIABILITY")
-    executor.shutdown()
-    node.destroy_node()
 
 
 def test_parameter_services_answer(context):
@@ -116,14 +122,10 @@ def test_parameter_services_answer(context):
     server_executor.shutdown()
 
 
-def test_a_node_with_a_client_falls_back_to_rclpy_and_still_runs(context):
-    node = Node("step_executor_fallback", context=context)
+def test_a_node_with_a_client_falls_back_to_rclpy_and_still_runs(spinning):
+    node, executor = spinning("step_executor_fallback")
     node.create_client(GetParameters, "/nobody/get_parameters")
-    executor = StepExecutor(context=context)
-    executor.add_node(node)
     ticks = []
     node.create_timer(0.01, lambda: ticks.append(1))
     spin_until(executor, lambda: len(ticks) >= 3)
     assert not executor._entities.supported
-    executor.shutdown()
-    node.destroy_node()
