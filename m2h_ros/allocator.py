@@ -8,8 +8,7 @@ their gradients, the stacked rollout): without this, a benchmark run spent ~35% 
 ~0.4 ms of system time per env step on it (docs/policies.md, Speed). Raising the mmap and trim
 thresholds keeps those blocks in the heap for the next update; the peak resident size stays the same.
 The pipeline's messages are 64-200 KiB, just above the initial 128 KiB threshold: a node receiving a
-188 KiB message spent 0.74 ms of CPU on it with glibc's defaults, 0.48 ms with this (a two-process
-ping measured on these cores, StepExecutor, 300 messages).
+188 KiB message spends ~40% less CPU on it with this (``scripts/bench/ros_messages.py``).
 
 Process-wide, like ``torch.set_num_threads``; a no-op (returns False) where the C library has no
 ``mallopt`` (not glibc).
