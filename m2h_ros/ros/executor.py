@@ -11,6 +11,9 @@ directly, in the order rclpy would (waitables, timers, subscriptions, services).
 It serves what the pipeline's nodes use: plain (not ``async``) callbacks of subscriptions, timers,
 services and QoS event handlers, one thread. Anything else (service clients, guard conditions of a
 node, tasks, coroutine callbacks) falls back to rclpy's own loop, so it is never wrong, only slower.
+It reads rclpy internals (the executor's guard conditions and task list, a subscription's callback
+type, an event handler's handle): written against rclpy 7.1.6 (Jazzy), pinned in requirements.txt;
+test/graph/test_executor.py checks each kind of entity it serves.
 """
 
 from __future__ import annotations
