@@ -75,7 +75,6 @@ class SimNode(Node):
         self.separated: tuple[str, int] = ("", -1)  # the last (episode, step) the separator answered
         self.scored: set[str] = set()
         self.scored_steps = 0  # StepScores received: the evaluator's progress
-        self.played: list[str] = []  # episode ids started
         self.current: PlayerStep | None = None
         self.position = -1  # index into self.indices
         self.published_at = self.first_published_at = 0.0
@@ -140,14 +139,13 @@ class SimNode(Node):
         if self.current.done:
             if self.scores_evaluator:
                 last = self.position == len(self.indices) - 1
-                answered = set(self.played) <= self.scored if last else self.evaluator_keeps_up()
+                answered = len(self.scored) == len(self.indices) if last else self.evaluator_keeps_up()
             else:
                 answered = self.separated == (episode_id, step)
             if answered:
                 self.next_episode()
             elif now - self.published_at > self.config.step_timeout_s:
-                who = (f"evaluator_node left {self.steps - self.scored_steps} observations unscored"
-                       if self.scores_evaluator else "separator_node sent no output")
+                who = self.unscored() if self.scores_evaluator else "separator_node sent no output"
                 raise PipelineError(f"episode {episode_id} ended at step {step} and {who} for "
                                     f"{self.config.step_timeout_s} s{self.absent_nodes()}")
             return
@@ -157,13 +155,15 @@ class SimNode(Node):
             self.advance(action)
         elif now - self.published_at > self.config.step_timeout_s:
             if action is not None:
-                raise PipelineError(f"{episode_id} step {step}: evaluator_node left {self.steps - self.scored_steps} "
-                                    f"observations unscored for {self.config.step_timeout_s} s"
+                raise PipelineError(f"{episode_id} step {step}: {self.unscored()} for {self.config.step_timeout_s} s"
                                     f"{self.absent_nodes()}")
             culprit = ("controller_node" if self.separated == (episode_id, step) else "separator_node")
             raise PipelineError(f"no motion command for {episode_id} step {step} within "
                                 f"{self.config.step_timeout_s} s: {culprit} did not answer"
                                 f"{self.absent_nodes()}")
+
+    def unscored(self) -> str:
+        return f"evaluator_node left {self.steps - self.scored_steps} observations unscored"
 
     def evaluator_keeps_up(self) -> bool:
         """Whether one more observation stays within max_evaluator_lag of the evaluator's scores."""
@@ -193,7 +193,6 @@ class SimNode(Node):
                                    f"({self.steps / max(elapsed, 1e-9):.1f} steps/s){dropped}")
             raise RunFinished()
         self.current = self.player.start(self.indices[self.position])
-        self.played.append(self.player.episode.episode_id)
         self.commands = {k: v for k, v in self.commands.items() if k[0] == self.player.episode.episode_id}
         self.publish(episode_start=True)
 

@@ -73,7 +73,6 @@ from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_inputs, save_policy  # noqa: E402
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
-from m2h_ros.allocator import keep_freed_blocks  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 
@@ -340,7 +339,6 @@ class PPOTrainer:
         else:
             self.device = torch.device("cpu")
         torch.set_num_threads(config.threads)
-        keep_freed_blocks()  # the update's large temporaries: reused, not mapped afresh (m2h_ros/allocator.py)
         torch.manual_seed(config.seed)
         self.policy_config = config.policy_config()
         self.net = PolicyNet(self.policy_config).to(self.device)
@@ -385,8 +383,9 @@ class PPOTrainer:
         self.last_classes = self._classes()
         self.separation = self.runner.step(self.obs["audio"], self.last_classes, np.ones(n, bool),
                                            keys=_poses(self.obs))
-        # The memory each slot's current estimate was refined with (all slots start afresh here).
-        self.previous_memory = torch.zeros_like(self.runner.memory)
+        # The memory each slot's current estimate was refined with, which f^R trains on (all slots
+        # start afresh here); kept only while f^R trains.
+        self.previous_memory = torch.zeros_like(self.runner.memory) if self.refining else None
         self.nmse_now = nmse(self.separation.refined, self.target_mag)
         self.final_nmse = np.zeros(n)
 
@@ -440,7 +439,7 @@ class PPOTrainer:
                 final_obs = info["final_observation"]
                 final = self.runner.step(final_obs["audio"][ended], self.last_classes[ended],
                                          np.zeros(len(ended), bool), rows=ended, keys=_poses(final_obs, ended))
-            previous_memory = self.runner.memory.clone()  # what refines this observation's estimate
+            previous_memory = self.runner.memory.clone() if self.refining else None  # refines this estimate
             separation = self.runner.step(obs["audio"], classes, done, keys=_poses(obs))
             reward = self._reward(obs, info, env_reward, separation, final, ended)
             self.last_classes = classes
@@ -595,7 +594,8 @@ class PPOTrainer:
             "generator": self.generator.get_state(), "rng": self.rng.bit_generator.state,
             "env": self.env.state(),
             "obs": _to_tensors(self.obs), "separation": _to_tensors(dataclasses.asdict(sep)),
-            "memory": self.runner.memory.cpu(), "previous_memory": self.previous_memory.cpu(),
+            "memory": self.runner.memory.cpu(),
+            "previous_memory": None if self.previous_memory is None else self.previous_memory.cpu(),
             "hidden": self.hidden.cpu(),
             "episode": _to_tensors({"starts": self.starts, "returns": self.returns, "lengths": self.lengths,
                                     "target_mag": self.target_mag, "visits": self.visits,
@@ -626,7 +626,8 @@ class PPOTrainer:
         if "previous_memory" not in state:
             raise CheckpointError(f"{self.resume_path} was written before f^R's training memory was fixed; "
                                   f"use another --out or --fresh")
-        self.previous_memory = state["previous_memory"].to(self.device)
+        previous = state["previous_memory"]
+        self.previous_memory = None if previous is None else previous.to(self.device)
         self.hidden = state["hidden"].to(self.device)
         episode = _to_arrays(state["episode"])
         for key in ("starts", "returns", "lengths", "target_mag", "visits", "nmse_now", "final_nmse", "last_classes"):

@@ -28,12 +28,12 @@ from m2h_ros.agents.registry import make_controller  # noqa: E402
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-from m2h_ros.node_configs import SimConfig  # noqa: E402
+from m2h_ros.node_configs import PIPELINE_NODES, SimConfig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node")
+NODES = ("sim_node", *PIPELINE_NODES)
 
 
 def in_process(config: SimConfig, controller: str) -> tuple[float, float]:
