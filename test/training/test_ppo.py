@@ -1,6 +1,7 @@
 """PPO on a tiny config: each quality reward has the right size on a constructed estimate and telescopes
 to the episode's change of its measure, GAE matches a hand computation, a run writes loadable
-checkpoints and logs, and a resumed run equals an uninterrupted one."""
+checkpoints and logs, a resumed run equals an uninterrupted one, and experiment 6 (m2h_ros/experiments/
+reward.py) reads finished runs with their training time and refuses runs that differ in more than the reward."""
 
 import csv
 import dataclasses
@@ -13,6 +14,7 @@ from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
 from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.experiments import reward
 from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
@@ -256,3 +258,35 @@ def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folde
         for name, tensor in plain.items():
             torch.testing.assert_close(fast[name], tensor, rtol=1e-4, atol=1e-6, msg=name)
     assert any(not torch.equal(t, start[0][n]) for n, t in fast_weights[0].items())  # the update did move them
+
+
+
+def test_reward_experiment_reads_compares_and_plots_runs(fast_env, separator_path, folder_library, tmp_path):
+    config = tiny(fast_env, separator_path, updates=1, train_refiner=False)
+    for name in ("nmse", "snr"):
+        train(dataclasses.replace(config, quality_reward=name), folder_library, out_dir=tmp_path / name,
+              progress=False, command=f"train {name}")
+    runs = [reward.load_run(tmp_path / name) for name in ("nmse", "snr")]
+    assert [r.label for r in runs] == ["pi^Q (nmse)", "pi^Q (snr)"]
+    reward.check_comparable(runs)
+    timing = runs[1].timing()
+    assert timing["updates"] == 1 and timing["env_steps"] == 2 * STEPS and timing["command"] == "train snr"
+    assert timing["env_steps_per_s"] == pytest.approx(timing["env_steps"] / timing["wall_seconds"])
+    assert timing["median_update_env_steps_per_s"] == pytest.approx(np.median([r["sps"] for r in runs[1].log]))
+    table = reward.timing_table(runs)
+    assert table.count("\n") == 4 and "pi^Q (snr) | 1 | 8 |" in table
+    png = reward.plot_training(runs, tmp_path / "curves.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    with pytest.raises(ConfigError, match="share a reward"):
+        reward.check_comparable([runs[0], runs[0]])
+    train(dataclasses.replace(config, quality_reward="si_sdr", seed=1), folder_library, out_dir=tmp_path / "seed1",
+          progress=False)
+    with pytest.raises(ConfigError, match="differs .* in seed$"):
+        reward.check_comparable([runs[0], reward.load_run(tmp_path / "seed1")])
+    train(dataclasses.replace(config, train_refiner=True), folder_library, out_dir=tmp_path / "refined",
+          progress=False)
+    with pytest.raises(ConfigError, match="trained f\\^R"):
+        reward.load_run(tmp_path / "refined")
+    with pytest.raises(ConfigError, match="not a finished training run"):
+        reward.load_run(tmp_path / "missing")
