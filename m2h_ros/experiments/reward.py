@@ -76,7 +76,9 @@ def load_run(directory: Path) -> RewardRun:
                           "so that every controller plays with the same separator")
     if metadata["updates"] != config["updates"]:
         raise ConfigError(f"{directory} stopped at update {metadata['updates']} of {config['updates']}")
-    return RewardRun(f"pi^Q ({config.get('quality_reward', 'nmse')})", directory, config, metadata, log)
+    if "quality_reward" not in config:
+        raise ConfigError(f"{directory} was trained before --quality-reward existed: retrain it")
+    return RewardRun(f"pi^Q ({config['quality_reward']})", directory, config, metadata, log)
 
 
 def check_comparable(runs: Sequence[RewardRun]) -> None:
@@ -154,5 +156,5 @@ def timing_table(runs: Sequence[RewardRun]) -> str:
 
 def describe_runs(runs: Sequence[RewardRun]) -> list[dict]:
     """What results.json records of each run: where it is, its command and its training time."""
-    return [{"label": r.label, "directory": repo_relative(r.directory), "quality_reward": r.config.get("quality_reward"),
+    return [{"label": r.label, "directory": repo_relative(r.directory), "quality_reward": r.config["quality_reward"],
              "seed": r.config["seed"], **r.timing(), "machine": r.metadata.get("machine")} for r in runs]

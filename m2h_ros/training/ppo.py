@@ -17,9 +17,10 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
    NMSE_t - NMSE_{t+1} against the ground-truth monaural magnitude (NMSE = mean squared error / mean
    squared target), -10 x NMSE last; ``snr``: SNR_{t+1} - SNR_t in dB (SNR = -10 log10 NMSE),
    +10 x SNR dB last; ``si_sdr``: SI-SDR_{t+1} - SI-SDR_t in dB of the waveform rebuilt with the
-   ground-truth monaural phase, as the evaluation scores it, +10 x SI-SDR dB last; ``navigation`` (pi^N + Stop, AV Navigator) the env's reward (+10 for Stop
-   at the target, +-0.25 per metre of geodesic distance, -0.01 per step); ``novelty`` 1 / sqrt(n)
-   with n the visits (this one included) of the node the step arrives at in this episode.
+   ground-truth monaural phase, as the evaluation scores it, +10 x SI-SDR dB last. ``navigation``
+   (pi^N + Stop, AV Navigator) the env's reward (+10 for Stop at the target, +-0.25 per metre of
+   geodesic distance, -0.01 per step); ``novelty`` 1 / sqrt(n) with n the visits (this one included)
+   of the node the step arrives at in this episode.
 3. GAE(gamma, lambda) advantages, normalised (over all workers with DD-PPO); an episode end is
    terminal (no bootstrap), as in the original.
 4. ``ppo_epochs`` passes of ``n_minibatches`` minibatches (whole slot sequences, the GRU re-run from

@@ -12,8 +12,8 @@ Train the runs first, one per reward, with the same seed and budget (docs/experi
 
 Each run's pi^Q (its policy.pt) and Stand In-Place play the same near-target test episodes; the report
 (results.md / .csv / .json, si_sdr_vs_step.png, training_curves.png) gives final-step SI-SDR with 95% CI,
-each pi^Q's paired difference to Stand In-Place, and each run's training time. The paper's finding
-(Supp. Sec. 6): the SI-SDR-improvement reward trains the best pi^Q.
+each pi^Q's paired difference to Stand In-Place, and each run's training time: the supplementary's
+question is which measure trains the better pi^Q, and at what training cost.
 """
 
 import argparse
@@ -25,7 +25,8 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from m2h_ros.core.results import markdown_table, paired_differences, paired_table, summarize, write_results  # noqa: E402
+from m2h_ros.core.results import (markdown_table, paired_differences, paired_table, summarize,  # noqa: E402
+                                  write_results)
 from m2h_ros.errors import M2HError  # noqa: E402
 from m2h_ros.experiments import reward  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
