@@ -118,7 +118,7 @@ def run_reward_jobs(jobs: Sequence[EvalJob], *, workers: int, address: str | Non
 
 
 def plot_training(runs: Sequence[RewardRun], path: Path) -> Path:
-    """Final NMSE (the measure every run logs), each run's own final measure, and entropy vs env steps."""
+    """Final NMSE (the measure every run logs), value loss (in each reward's units) and entropy vs env steps."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
@@ -127,15 +127,15 @@ def plot_training(runs: Sequence[RewardRun], path: Path) -> Path:
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     for run in runs:
         steps = [r["env_steps"] for r in run.log]
-        for ax, key in zip(axes, ("final_nmse_window", "final_quality_window", "entropy"), strict=True):
+        for ax, key in zip(axes, ("final_nmse_window", "value_loss", "entropy"), strict=True):
             ax.plot(steps, [r[key] for r in run.log], label=run.label)
-    titles = ("final NMSE, last 50 episodes (lower is better)",
-              "final value of the run's own measure, last 50 episodes", "policy entropy")
+    titles = ("final NMSE, last 50 episodes (lower is better)", "value loss (the reward's units squared)",
+              "policy entropy")
     for ax, title in zip(axes, titles, strict=True):
         ax.set(title=title, xlabel="environment steps")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    axes[1].set_ylabel("NMSE, or dB (SNR, SI-SDR)")
+    axes[1].set_yscale("log")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

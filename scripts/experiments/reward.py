@@ -12,11 +12,12 @@ Train the runs first, one per reward, with the same seed and budget (docs/experi
 
 Each run's pi^Q (its policy.pt) and Stand In-Place play the same near-target test episodes; the report
 (results.md / .csv / .json, si_sdr_vs_step.png, training_curves.png) gives final-step SI-SDR with 95% CI,
-each pi^Q's paired difference to Stand In-Place, and each run's training time: the supplementary's
-question is which measure trains the better pi^Q, and at what training cost.
+each pi^Q's paired difference to Stand In-Place and to the first run's pi^Q, and each run's training
+time: the supplementary's question is which measure trains the better pi^Q, and at what cost.
 """
 
 import argparse
+import json
 import os
 import shlex
 import sys
@@ -67,11 +68,19 @@ def main() -> int:
                           setup=f"separator {runs[0].config['separator'] or 'shipped'}; runs "
                                 + ", ".join(f"`{repo_relative(r.directory)}`" for r in runs))
     paths["curves"] = reward.plot_training(runs, args.out / "training_curves.png")
+    # The rewards against each other: every run's pi^Q minus the first run's, episode by episode.
+    versus = [r for r in paired_differences(results, reference=runs[0].label) if r["controller"] != reward.REFERENCE]
     with paths["markdown"].open("a") as stream:
+        if versus:
+            stream.write(f"\nFinal-step SI-SDR (dB, GT phase) minus {runs[0].label}'s on the same episodes:\n\n"
+                         f"{paired_table(versus)}")
         stream.write(f"\nTraining (each run's policy.pt metadata and log.csv):\n\n{reward.timing_table(runs)}"
                      "\nTraining curves: training_curves.png.\n")
+    document = json.loads(paths["json"].read_text())
+    paths["json"].write_text(json.dumps({**document, "paired_vs_first_run": versus}, indent=1))
     print(markdown_table(summarize(results)))
     print(paired_table(paired_differences(results, reference=reward.REFERENCE)))
+    print(paired_table(versus))
     print(reward.timing_table(runs))
     print(", ".join(f"{kind}: {path}" for kind, path in paths.items()))
     return 0
