@@ -494,19 +494,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def config_from_args(args: argparse.Namespace) -> PretrainConfig:
+    """The run :func:`main` makes of ``build_parser()``'s arguments."""
+    model = dataclasses.replace(SeparatorConfig.preset(args.preset), backbone=args.backbone)
+    return PretrainConfig(model=model, seed=args.seed, epochs=args.epochs,
+                      batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
+                      refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
+                      workers=args.workers, final_lr=args.final_lr,
+                      init_from=repo_relative(args.init_from) if args.init_from else "",
+                      train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
+                                                       source_nodes=args.source_nodes),
+                      refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,
+                                                       scenes=args.train_scenes, source_nodes=args.source_nodes),
+                      val_data=StreamConfig.validation(source_nodes=args.source_nodes))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    model = dataclasses.replace(SeparatorConfig.preset(args.preset), backbone=args.backbone)
-    config = PretrainConfig(model=model, seed=args.seed, epochs=args.epochs,
-                            batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
-                            refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
-                            workers=args.workers, final_lr=args.final_lr,
-                            init_from=repo_relative(args.init_from) if args.init_from else "",
-                            train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
-                                                             source_nodes=args.source_nodes),
-                            refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,
-                                                             scenes=args.train_scenes, source_nodes=args.source_nodes),
-                            val_data=StreamConfig.validation(source_nodes=args.source_nodes))
+    config = config_from_args(args)
     command = shlex.join([Path(sys.argv[0]).name, *(sys.argv[1:] if argv is None else argv)])
     result = pretrain(config, SoundLibrary.load(), out=args.out, command=command, fresh=args.fresh)
     final, wall = result.metadata["final"], result.metadata["wall_seconds"]
