@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from m2h_ros import topics
+from m2h_ros.allocator import keep_freed_blocks
 from m2h_ros.core.audio.scoring import StepTruth, score_magnitude
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig
 from m2h_ros.core.results import METRICS, EpisodeResult, EpisodeTracker, plot_si_sdr_vs_step, write_results
@@ -190,6 +191,7 @@ def _spectrogram(msg, what: str) -> tuple[np.ndarray, StftConfig]:
 
 class _Replayer:
     def __init__(self, bag: Path, config: ReplayConfig) -> None:
+        keep_freed_blocks()  # process-wide: each batch's arrays reuse the last one's memory, not fresh pages
         self.bag = bag
         self.config = config
         self.store = typestore()
