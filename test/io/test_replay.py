@@ -280,4 +280,6 @@ def test_cli_writes_tables_plots_and_exit_codes(near_bag, tmp_path, capsys):
     killed = killed_copy(bag, tmp_path / "killed", 0.5)
     assert m2h_eval([str(killed), "--out", str(tmp_path / "out2"), "--no-plots"]) == 3
     assert m2h_eval([str(tmp_path / "nope"), "--out", str(tmp_path / "out3")]) == 2
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out4"), "--no-plots", "--threads", "2"]) == 0
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out5"), "--threads", "0"]) == 2
     shutil.rmtree(killed)
