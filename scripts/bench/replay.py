@@ -15,7 +15,7 @@ cases interleaved REPEATS times; the figures are the median and the min-max spre
   read uses one (compare CPU time too).
 
 Reports steps/s and MB/s (bag bytes / wall time), CPU ms per step (the process's user + system time:
-less sensitive to the machine's load than wall time), the replay / bare-read ratios of both (target
+less sensitive to the machine's load than wall time), minor page faults per step, the replay / bare-read ratios of both (target
 >= 0.5), peak RSS for both bag lengths (target: flat), and the load average before and after. Then,
 from one more replay per bag with timers around its parts, where a replay step's CPU time goes: the
 bag walk (BagStream), CDR decoding, scoring (``score_magnitude``, of which its FFTs) and the rest
@@ -96,6 +96,7 @@ def child(mode: str, bag: Path) -> dict:
     store = typestore()
     wanted = {ReplayConfig().topic(name) for name in EXPECTED_TYPES}
     parts = _time_parts() if mode == "split" else {}
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     start, cpu = time.perf_counter(), _cpu_seconds()
     steps = 0
     if mode in ("replay", "split", "replay x2"):
@@ -110,7 +111,8 @@ def child(mode: str, bag: Path) -> dict:
                 if connection.topic == "/" + "scores/step":
                     steps += 1
     seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
-    return {"seconds": seconds, "cpu_seconds": cpu, "steps": steps, "parts": parts,
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+    return {"seconds": seconds, "cpu_seconds": cpu, "steps": steps, "parts": parts, "page_faults": faults,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
@@ -161,12 +163,15 @@ def main() -> None:
             size = bag_bytes(bag) / 1e6
             steps = runs[b, "replay"][0]["steps"]
             print(f"\n{b} bag: {size:.0f} MB, {steps} steps scored")
-            print(f"  {'case':12s} {'steps/s':>22s} {'MB/s':>22s} {'CPU ms/step':>22s} {'peak RSS MB':>22s}")
+            print(f"  {'case':12s} {'steps/s':>22s} {'MB/s':>22s} {'CPU ms/step':>22s} {'page faults/step':>18s} "
+                  f"{'peak RSS MB':>22s}")
             for m in modes:
                 secs = [r["seconds"] for r in runs[b, m]]
                 cpu = [r["cpu_seconds"] / steps * 1e3 for r in runs[b, m]]
+                faults = [r["page_faults"] / steps for r in runs[b, m]]
                 print(f"  {m:12s} {spread([steps / s for s in secs]):>22s} {spread([size / s for s in secs]):>22s} "
-                      f"{spread(cpu, '{:.3f}'):>22s} {spread([r['peak_rss_mb'] for r in runs[b, m]]):>22s}")
+                      f"{spread(cpu, '{:.3f}'):>22s} {spread(faults, '{:.0f}'):>18s} "
+                      f"{spread([r['peak_rss_mb'] for r in runs[b, m]]):>22s}")
             for case in (m for m in modes if m.startswith("replay")):
                 for base in ("bare", "bare+decode"):
                     pairs = list(zip(runs[b, base], runs[b, case], strict=True))
