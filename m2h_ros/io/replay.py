@@ -402,12 +402,12 @@ class _Replayer:
 
         futures = [self.pool.submit(score, r) for r in rows[1:]]
         try:
-            parts = [score(rows[0])] + [f.result() for f in futures]
+            parts = [score(rows[0])] + [future.result() for future in futures]
         except (AudioError, ConfigError):
-            for f in futures:
-                f.cancel()
+            for future in futures:
+                future.cancel()
             return score_magnitude(magnitude, mixture, truth, config=config)  # raises what one call raises
-        return StepScores(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(StepScores)))
+        return StepScores(*(np.concatenate([getattr(part, name.name) for part in parts]) for name in fields(StepScores)))
 
     def _finish(self, episode: _Episode) -> None:
         del self.open[episode.episode_id]
