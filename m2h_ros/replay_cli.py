@@ -34,6 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"namespace the graph ran in (default: {defaults.namespace})")
     parser.add_argument("--atol", type=float, default=defaults.atol,
                         help=f"tolerance of replayed vs live scores (default: {defaults.atol:g})")
+    parser.add_argument("--threads", type=int, default=defaults.score_threads,
+                        help=f"threads scoring each batch of steps (same numbers; default: {defaults.score_threads})")
     parser.add_argument("--no-plots", action="store_true", help="write tables only")
     return parser
 
@@ -45,7 +47,7 @@ def _one_line(text: str) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        config = ReplayConfig(namespace=args.namespace, atol=args.atol)
+        config = ReplayConfig(namespace=args.namespace, atol=args.atol, score_threads=args.threads)
     except ConfigError as exc:
         print(f"m2h-eval: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FATAL

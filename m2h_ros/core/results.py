@@ -141,33 +141,38 @@ def summarize(results: Iterable[EpisodeResult], *, by: Sequence[str] = GROUP_KEY
     return rows
 
 
-def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metric: str = "si_sdr") -> list[dict]:
-    """Final-step ``metric`` of each other controller minus ``reference``'s on the same episodes, mean
-    and 95% CI per (controller, task, sound split): the paired comparison is much tighter than
-    comparing the two means, since episodes vary far more than controllers do."""
+def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metric: str = "si_sdr",
+                       by: Sequence[str] = GROUP_KEYS, vary: str = "controller") -> list[dict]:
+    """Final-step ``metric`` of each other ``vary`` value minus ``reference``'s on the same episodes,
+    mean and 95% CI per group of ``by`` (which holds ``vary``): the paired comparison is much tighter
+    than comparing the two means, since episodes vary far more than controllers (or separators) do.
+    Default: each controller against ``reference`` per (task, sound split)."""
     if metric not in METRICS:
         raise ConfigError(f"unknown metric {metric!r}; one of {METRICS}")
-    finals: dict[tuple[str, str, str], dict[str, float]] = {}
+    if vary not in by:
+        raise ConfigError(f"paired_differences: {vary!r} must be one of the grouping fields {tuple(by)}")
+    at = list(by).index(vary)
+    finals: dict[tuple, dict[str, float]] = {}
     for r in results:
-        finals.setdefault((r.controller, r.task, r.sound_split), {})[r.episode_id] = r.final(metric)
+        finals.setdefault(tuple(getattr(r, k) for k in by), {})[r.episode_id] = r.final(metric)
     rows = []
-    for (controller, task, split), values in finals.items():
-        base = finals.get((reference, task, split))
-        if controller == reference or base is None:
+    for key, values in finals.items():
+        base = finals.get((*key[:at], reference, *key[at + 1:]))
+        if key[at] == reference or base is None:
             continue
         shared = sorted(values.keys() & base.keys())
         mean, half = mean_ci([values[e] - base[e] for e in shared])
-        rows.append({"controller": controller, "task": task, "sound_split": split, "reference": reference,
-                     "metric": metric, "episodes": len(shared), "difference": mean, "ci95": half})
+        rows.append({**dict(zip(by, key)), "reference": reference, "metric": metric, "episodes": len(shared),
+                     "difference": mean, "ci95": half})
     return rows
 
 
-def paired_table(rows: Sequence[dict]) -> str:
-    head = ["controller", "task", "sound_split", "episodes", "difference (mean ± 95% CI)"]
+def paired_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> str:
+    head = [*by, "episodes", "difference (mean ± 95% CI)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
-        lines.append(f"| {row['controller']} | {row['task']} | {row['sound_split']} | {row['episodes']} | "
-                     f"{row['difference']:+.2f} ± {row['ci95']:.2f} |")
+        cells = [str(row[k]) for k in by]
+        lines.append(f"| {' | '.join(cells)} | {row['episodes']} | {row['difference']:+.2f} ± {row['ci95']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -207,9 +212,9 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
             "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
             "(mixture phase): rebuilt with the mixture's phase (deployable).\n")
     how = (f"Command: `{command}`\n\n" if command else "") + (f"Setup: {setup}\n\n" if setup else "")
-    paired = paired_differences(results, reference=reference) if reference else []
+    paired = paired_differences(results, reference=reference, by=by) if reference else []
     versus = (f"\nFinal-step SI-SDR (dB, GT phase) minus {reference}'s on the same episodes:\n\n"
-              f"{paired_table(paired)}") if paired else ""
+              f"{paired_table(paired, by=by)}") if paired else ""
     paths["markdown"].write_text(f"# {title}\n\n{how}{note}\n{markdown_table(rows, by=by)}{versus}")
     with paths["csv"].open("w", newline="") as stream:
         writer = csv.writer(stream)

@@ -4,6 +4,7 @@ the jobs run (local Ray CPUs or a cluster), where the report goes."""
 from __future__ import annotations
 
 import argparse
+import hashlib
 import shlex
 import sys
 import time
@@ -15,13 +16,23 @@ from m2h_ros.experiments.sweep import Condition, Sweep, run_sweep, write_sweep
 from m2h_ros.paths import REPO_DIR, repo_relative
 
 
+def _separators(conditions: Sequence[Condition]) -> dict:
+    """The separator checkpoints the conditions name (repo-relative path, sha256 prefix), for the meta."""
+    named = {c.label: Path(c.separator) for c in conditions if c.separator}
+    return {"separators": {label: {"path": repo_relative(path),
+                                   "sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:12]}
+                           for label, path in named.items()}} if named else {}
+
+
 def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str, xlabel: str,
                conditions: Callable[[argparse.Namespace], list[Condition]],
                add_arguments: Callable[[argparse.ArgumentParser], None] = lambda parser: None,
                controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target",
-               sound_split: str = "heard,unheard") -> int:
+               sound_split: str = "heard,unheard", reference: str | None = None,
+               condition_reference: str | None = None) -> int:
     """Parse, run the sweep, write ``docs/results/<script stem>/`` (or --out); 2 on a clear error.
-    ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository)."""
+    ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository);
+    ``reference`` / ``condition_reference``: the paired comparisons of :func:`write_sweep`."""
     script = repo_relative(script)
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--task", default=task, help="near_target, far_target or both comma-separated")
@@ -48,9 +59,11 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
         print(f"{Path(script).name}: error: {exc}", file=sys.stderr)
         return 2
     meta = {"count": args.count, "controller_seed": args.seed, "workers": args.address or args.workers,
-            "conditions": [c.label for c in sweep.conditions]}
+            "conditions": [c.label for c in sweep.conditions],
+            **_separators(sweep.conditions)}
     paths = write_sweep(results, rows, args.out, title=title, xlabel=xlabel, command=command, meta=meta,
-                        started=started)
+                        started=started, reference=reference if reference in sweep.controllers else None,
+                        condition_reference=condition_reference)
     print(paths["markdown"].read_text())
     print(", ".join(f"{kind}: {path}" for kind, path in paths.items()))
     return 0

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from m2h_ros import sim_world
 from m2h_ros.agents.registry import controller_class
-from m2h_ros.core.results import EpisodeResult, mean_ci, write_results
+from m2h_ros.core.results import EpisodeResult, mean_ci, paired_differences, paired_table, write_results
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
@@ -25,6 +25,7 @@ from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.jobs import EvalJob, run_eval_job, run_jobs
 
 ESTIMATE_LABELS = {"refined": "f^R", "monaural": "no f^R"}
+SWEEP_KEYS = ("controller", "condition", "task", "sound_split")
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,7 @@ class Condition:
     env: dict = field(default_factory=dict)  # EnvConfig overrides
     controller: dict = field(default_factory=dict)  # learned controllers' options (make_controller)
     estimate: str = "refined"
+    separator: str = ""  # separator checkpoint (absolute path: Ray workers); "" the shipped one
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,7 @@ def sweep_jobs(sweep: Sweep, library: SoundLibrary) -> tuple[list[EvalJob], list
                     for first in range(0, len(chosen), sweep.chunk):
                         jobs.append(EvalJob(controller=name, episodes=tuple(chosen[first:first + sweep.chunk]),
                                             env=env, library=sweep.library, estimate=cond.estimate,
+                                            separator=cond.separator,
                                             controller_options=tuple(sorted(cond.controller.items())),
                                             condition=cond.label, seed=sweep.seed))
                         keys.append((name, task, split, index))
@@ -96,12 +99,23 @@ def run_sweep(sweep: Sweep, *, workers: int = 1, address: str | None = None, pro
 
 
 def write_sweep(results: Sequence[EpisodeResult], rows: Sequence[dict], out: Path, *, title: str, xlabel: str,
-                command: str, meta: dict, started: float) -> dict[str, Path]:
-    """results.md / .csv / .json grouped by condition, and si_sdr_vs_<x>.png; returns the paths."""
+                command: str, meta: dict, started: float, reference: str | None = None,
+                condition_reference: str | None = None) -> dict[str, Path]:
+    """results.md / .csv / .json grouped by condition, and si_sdr_vs_<x>.png; returns the paths.
+    ``reference``: a controller every other one is compared with, episode by episode, per condition;
+    ``condition_reference``: a condition every other one is compared with, per controller (both as
+    final-step SI-SDR differences, GT phase, in the Markdown and in results.json)."""
+    versus = (paired_differences(results, reference=condition_reference, by=SWEEP_KEYS, vary="condition")
+              if condition_reference else [])
     meta = {**meta, "command": command, "wall_seconds": round(time.perf_counter() - started, 1),
-            "load_average": [round(x, 2) for x in os.getloadavg()], "curve": list(rows)}
-    paths = write_results(results, out, title=title, meta=meta, command=command, plot=False,
-                          by=("controller", "condition", "task", "sound_split"))
+            "load_average": [round(x, 2) for x in os.getloadavg()], "curve": list(rows),
+            **({"paired_conditions": versus} if versus else {})}
+    paths = write_results(results, out, title=title, meta=meta, command=command, plot=False, by=SWEEP_KEYS,
+                          reference=reference)
+    if versus:
+        with paths["markdown"].open("a") as stream:
+            stream.write(f"\nFinal-step SI-SDR (dB, GT phase) minus the {condition_reference!r} condition's, "
+                         f"same controller, same episodes:\n\n{paired_table(versus, by=SWEEP_KEYS)}")
     paths["plot"] = plot_curve(rows, out / "si_sdr_vs_condition.png", title=title, xlabel=xlabel)
     return paths
 

@@ -96,9 +96,9 @@ def _metadata_map(buf: memoryview, offset: int) -> dict[str, str]:
     return values
 
 
-def _decompress(data: memoryview, compression: str, size: int) -> bytes:
+def _decompress(data: memoryview, compression: str, size: int) -> bytes | memoryview:
     if compression == "":
-        return bytes(data)
+        return data  # a view into the chunk record, which its messages' views keep alive: no copy
     if compression == "zstd":
         import zstandard
 

@@ -4,6 +4,9 @@ All tensors are in the sliced layout of :mod:`m2h_ros.core.audio.stft` (channel 
 s of input channel c, S = 16 slices of 32 bins, 32 frames): with the paper's STFT a binaural
 magnitude is (B, 32, 32, 32) and a monaural one (B, 16, 32, 32).
 
+f^B and f^M are U-Nets (``backbone="unet"``, the paper's) or MMDenseNet-style multi-band dense nets
+(``backbone="mmdensenet"``, ``models.mmdensenet``: experiment 5); same inputs and outputs either way.
+
 * f^B: U-Net on [log(1 + |mixture|) (2S channels), class plane] -> sigmoid ratio mask (2S channels),
   applied to the linear mixture magnitude -> separated binaural magnitude. (The original code uses
   the unbounded 1x1-conv output as the mask; a sigmoid keeps it in [0, 1], the ideal-ratio-mask range.)
@@ -33,9 +36,12 @@ from torch import nn
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, from_slices, rebuild_with_phase, stft
 from m2h_ros.config import reject_unknown_fields
 from m2h_ros.errors import AudioError, ConfigError
+from m2h_ros.models.mmdensenet import DOWNSAMPLING, MMDenseNet, band_slices
 from m2h_ros.models.unet import MemoryRefiner, UNet
 
 PRESET_NAMES = ("paper", "compact")
+# f^B / f^M networks: the paper's U-Net, or the MMDenseNet-style multi-band dense net (experiment 5).
+BACKBONES = ("unet", "mmdensenet")
 N_EARS = 2  # binaural input
 _INV_LN2 = 1.0 / float(np.log(2.0))  # softplus(0) * this = gain 1
 # Version of the output parameterisation, stored in checkpoints: weights of another version have the
@@ -51,16 +57,23 @@ class SeparatorConfig:
     unet_channels: tuple[int, ...] = (16, 32, 64, 64, 64)
     refiner_hidden: int = 32
     n_freq_slices: int = 16
+    # Checkpoints written before this field existed hold U-Nets: the default keeps them loading.
+    backbone: str = "unet"
+    dense_growth: int = 8  # MMDenseNet only: the growth rate (width) of every dense block
 
     def __post_init__(self) -> None:
         channels = tuple(self.unet_channels) if isinstance(self.unet_channels, (list, tuple)) else ()
         if len(channels) != 5 or any(not isinstance(c, int) or isinstance(c, bool) or c <= 0 for c in channels):
             raise ConfigError(f"SeparatorConfig.unet_channels must be 5 positive ints, got {self.unet_channels!r}")
         object.__setattr__(self, "unet_channels", channels)
-        for name in ("refiner_hidden", "n_freq_slices"):
+        for name in ("refiner_hidden", "n_freq_slices", "dense_growth"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise ConfigError(f"SeparatorConfig.{name} must be a positive int, got {value!r}")
+        if self.backbone not in BACKBONES:
+            raise ConfigError(f"SeparatorConfig.backbone must be one of {BACKBONES}, got {self.backbone!r}")
+        if self.backbone == "mmdensenet":
+            band_slices(self.n_freq_slices)  # every band needs a slice
 
     @classmethod
     def preset(cls, name: str) -> SeparatorConfig:
@@ -70,6 +83,13 @@ class SeparatorConfig:
         if name == "compact":
             return cls()
         raise ConfigError(f"unknown separator preset {name!r}; choose one of {PRESET_NAMES}")
+
+    @property
+    def summary(self) -> str:
+        """The backbone and its widths, for logs: ``unet 16-32-64-64-64`` or ``mmdensenet growth 8``."""
+        if self.backbone == "unet":
+            return "unet " + "-".join(str(c) for c in self.unet_channels)
+        return f"{self.backbone} growth {self.dense_growth}"
 
     @property
     def binaural_channels(self) -> int:
@@ -86,8 +106,9 @@ class SeparatorConfig:
                 f"StftConfig.n_freq_slices={stft_config.n_freq_slices} but the separator expects {self.n_freq_slices}"
             )
         height, width = stft_config.slice_shape
-        if height % 32 or width % 32:
-            raise ConfigError(f"sliced planes {height}x{width} must be multiples of 32 for the 5-level U-Net")
+        multiple = 32 if self.backbone == "unet" else DOWNSAMPLING
+        if height % multiple or width % multiple:
+            raise ConfigError(f"sliced planes {height}x{width} must be multiples of {multiple} for the {self.backbone}")
 
     def to_dict(self) -> dict[str, Any]:
         values = asdict(self)
@@ -98,6 +119,14 @@ class SeparatorConfig:
     def from_dict(cls, values: dict[str, Any]) -> SeparatorConfig:
         reject_unknown_fields(cls, values)
         return cls(**{**values, "unet_channels": tuple(values.get("unet_channels", cls.unet_channels))})
+
+
+def backbone(config: SeparatorConfig, out_channels: int) -> nn.Module:
+    """f^B's or f^M's network: [binaural planes (2S), class plane] -> ``out_channels`` raw scores."""
+    if config.backbone == "mmdensenet":
+        return MMDenseNet(out_channels, groups=N_EARS, n_slices=config.n_freq_slices, extra=1,
+                          growth=config.dense_growth)
+    return UNet(config.binaural_channels + 1, out_channels, config.unet_channels)
 
 
 class SeparatorStep(NamedTuple):
@@ -116,8 +145,8 @@ class Separator(nn.Module):
         super().__init__()
         self.config = config = config or SeparatorConfig()
         bins, monos = config.binaural_channels, config.monaural_channels
-        self.binaural_separator = UNet(bins + 1, bins, config.unet_channels)
-        self.monaural_predictor = UNet(bins + 1, monos, config.unet_channels)
+        self.binaural_separator = backbone(config, bins)
+        self.monaural_predictor = backbone(config, monos)
         self.refiner = MemoryRefiner(monos, config.refiner_hidden)
 
     @staticmethod

@@ -32,7 +32,7 @@ def _up(in_channels: int, out_channels: int) -> nn.Sequential:
     )
 
 
-def _init_weights(module: nn.Module, *, nonlinearity: str) -> None:
+def init_weights(module: nn.Module, *, nonlinearity: str) -> None:
     for layer in module.modules():
         if isinstance(layer, (nn.Conv2d, nn.ConvTranspose2d)):
             if nonlinearity == "leaky_relu":
@@ -64,9 +64,9 @@ class UNet(nn.Module):
         decoder_out = [channels[3 - i] for i in range(4)] + [out_channels]
         self.decoder = nn.ModuleList(_up(i, o) for i, o in zip(decoder_in, decoder_out, strict=True))
         self.head = nn.Conv2d(out_channels, out_channels, kernel_size=1)
-        _init_weights(self.encoder, nonlinearity="leaky_relu")
-        _init_weights(self.decoder, nonlinearity="relu")
-        _init_weights(self.head, nonlinearity="relu")
+        init_weights(self.encoder, nonlinearity="leaky_relu")
+        init_weights(self.decoder, nonlinearity="relu")
+        init_weights(self.head, nonlinearity="relu")
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         skips = []
@@ -95,7 +95,7 @@ class MemoryRefiner(nn.Module):
             nn.ReLU(inplace=True),
             nn.Conv2d(hidden, channels, kernel_size=3, padding=1, bias=False),
         )
-        _init_weights(self.body, nonlinearity="relu")
+        init_weights(self.body, nonlinearity="relu")
         nn.init.zeros_(self.body[-1].weight)
 
     def forward(self, current: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:

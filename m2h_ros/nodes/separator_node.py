@@ -58,7 +58,7 @@ class SeparatorNode(Node):
         self.waiting: list[BinauralAudio] = []
         self.episode_id: str | None = None
         self.latencies: list[float] = []
-        self.get_logger().info(f"ready: separator {loaded.path.name} ({loaded.config.unet_channels}), "
+        self.get_logger().info(f"ready: separator {loaded.path.name} ({loaded.config.summary}), "
                                f"{self.threads} torch thread(s)")
 
     def on_episode(self, msg: EpisodeInfo) -> None:

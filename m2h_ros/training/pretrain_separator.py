@@ -1,6 +1,6 @@
 """Pretrain the passive separator (f^B, f^M, then f^R) on data drawn on the fly from the simulator.
 
-    python -m m2h_ros.training.pretrain_separator [--preset compact] [--seed 0] [--out PATH]
+    python -m m2h_ros.training.pretrain_separator [--preset compact] [--backbone unet] [--seed 0] [--out PATH]
 
 Data (``separator_data``): every batch is a fresh draw (episode, walk, clips, gains, noise) from the
 training scenes with heard sounds, rendered by DataLoader worker processes while the main process
@@ -64,7 +64,7 @@ from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa:
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
-from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
+from m2h_ros.models.separator import BACKBONES, PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.separator_data import (  # noqa: E402
@@ -467,6 +467,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Pretrain the passive separator (f^B, f^M, f^R) on simulator data.")
     defaults = PretrainConfig()
     parser.add_argument("--preset", choices=PRESET_NAMES, default="compact", help="model size (default compact)")
+    parser.add_argument("--backbone", choices=BACKBONES, default="unet",
+                        help="f^B / f^M network (default unet; mmdensenet: experiment 5, its own compact width)")
     parser.add_argument("--seed", type=int, default=0, help="weights")
     parser.add_argument("--data-seed", type=int, default=0, help="training streams (validation set: fixed)")
     parser.add_argument("--out", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="checkpoint path")
@@ -492,18 +494,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def config_from_args(args: argparse.Namespace) -> PretrainConfig:
+    """The run :func:`main` makes of ``build_parser()``'s arguments."""
+    model = dataclasses.replace(SeparatorConfig.preset(args.preset), backbone=args.backbone)
+    return PretrainConfig(model=model, seed=args.seed, epochs=args.epochs,
+                      batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
+                      refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
+                      workers=args.workers, final_lr=args.final_lr,
+                      init_from=repo_relative(args.init_from) if args.init_from else "",
+                      train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
+                                                       source_nodes=args.source_nodes),
+                      refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,
+                                                       scenes=args.train_scenes, source_nodes=args.source_nodes),
+                      val_data=StreamConfig.validation(source_nodes=args.source_nodes))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    config = PretrainConfig(model=SeparatorConfig.preset(args.preset), seed=args.seed, epochs=args.epochs,
-                            batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
-                            refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
-                            workers=args.workers, final_lr=args.final_lr,
-                            init_from=repo_relative(args.init_from) if args.init_from else "",
-                            train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
-                                                             source_nodes=args.source_nodes),
-                            refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed,
-                                                             scenes=args.train_scenes, source_nodes=args.source_nodes),
-                            val_data=StreamConfig.validation(source_nodes=args.source_nodes))
+    config = config_from_args(args)
     command = shlex.join([Path(sys.argv[0]).name, *(sys.argv[1:] if argv is None else argv)])
     result = pretrain(config, SoundLibrary.load(), out=args.out, command=command, fresh=args.fresh)
     final, wall = result.metadata["final"], result.metadata["wall_seconds"]

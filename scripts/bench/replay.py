@@ -1,7 +1,7 @@
 """Replay scoring rate (m2h-eval's core) vs a bare rosbags read of the same bag, and its peak memory on
 a bag 10x longer.
 
-    python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH]
+    python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH] [--threads]
 
 Writes a synthetic recorded run (m2h_ros.io.synthetic: every pipeline topic, camera included, arrays of
 the pipeline's sizes) of EPISODES x (STEPS + 1) observations and one 10x longer, or uses --bag (then
@@ -10,10 +10,16 @@ cases interleaved REPEATS times; the figures are the median and the min-max spre
 
 * bare read: rosbags' Reader yields every message's raw bytes (no decoding): the floor of any reader;
 * bare read + decode: the same, deserialising the topics replay needs (rosbags' typestore);
-* replay: :func:`m2h_ros.io.replay.replay_bag` (stream, decode, group, score, compare with live).
+* replay: :func:`m2h_ros.io.replay.replay_bag` (stream, decode, group, score, compare with live);
+* replay x2 (``--threads``): the same with ``ReplayConfig(score_threads=2)``: two cores, where the bare
+  read uses one (compare CPU time too).
 
-Reports steps/s and MB/s (bag bytes / wall time), the replay / bare-read rate ratio (target >= 0.5),
-peak RSS for both bag lengths (target: flat), and the load average before and after.
+Reports steps/s and MB/s (bag bytes / wall time), CPU ms per step (the process's user + system time:
+less sensitive to the machine's load than wall time), minor page faults per step, the replay / bare-read ratios of both (target
+>= 0.5), peak RSS for both bag lengths (target: flat), and the load average before and after. Then,
+from one more replay per bag with timers around its parts, where a replay step's CPU time goes: the
+bag walk (BagStream), CDR decoding, scoring (``score_magnitude``, of which its FFTs) and the rest
+(grouping, stacking, tracking, comparing with live).
 """
 
 from __future__ import annotations
@@ -36,6 +42,50 @@ def bag_bytes(bag: Path) -> int:
     return sum(f.stat().st_size for f in bag.glob("*.mcap")) if bag.is_dir() else bag.stat().st_size
 
 
+def _cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _time_parts() -> dict[str, float]:
+    """Wraps the parts of a replay in CPU timers (this process only); returns the running totals."""
+    import scipy.fft
+
+    from m2h_ros.io import replay as replay_module
+    from m2h_ros.io.mcap_stream import BagStream
+    from m2h_ros.io.msg_defs import typestore
+
+    totals = {"walk": 0.0, "decode": 0.0, "score": 0.0, "fft": 0.0}
+
+    def timed(part, function):
+        def wrapper(*args, **kwargs):
+            start = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                totals[part] += time.process_time() - start
+        return wrapper
+
+    walk = BagStream.messages
+
+    def messages(self, **kwargs):
+        stream = walk(self, **kwargs)
+        while True:
+            start = time.process_time()
+            message = next(stream, None)
+            totals["walk"] += time.process_time() - start
+            if message is None:
+                return
+            yield message
+
+    BagStream.messages = messages
+    store = typestore()
+    store.deserialize_cdr = timed("decode", store.deserialize_cdr)
+    replay_module.score_magnitude = timed("score", replay_module.score_magnitude)
+    scipy.fft.rfft, scipy.fft.irfft = timed("fft", scipy.fft.rfft), timed("fft", scipy.fft.irfft)
+    return totals
+
+
 def child(mode: str, bag: Path) -> dict:
     """One measurement in this (fresh) process."""
     from rosbags.rosbag2 import Reader
@@ -45,10 +95,12 @@ def child(mode: str, bag: Path) -> dict:
 
     store = typestore()
     wanted = {ReplayConfig().topic(name) for name in EXPECTED_TYPES}
-    start = time.perf_counter()
+    parts = _time_parts() if mode == "split" else {}
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    start, cpu = time.perf_counter(), _cpu_seconds()
     steps = 0
-    if mode == "replay":
-        replay = replay_bag(bag)
+    if mode in ("replay", "split", "replay x2"):
+        replay = replay_bag(bag, config=ReplayConfig(score_threads=2) if mode == "replay x2" else ReplayConfig())
         steps = replay.steps_scored
         assert replay.ok, [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
     else:
@@ -58,8 +110,10 @@ def child(mode: str, bag: Path) -> dict:
                     store.deserialize_cdr(data, connection.msgtype)
                 if connection.topic == "/" + "scores/step":
                     steps += 1
-    seconds = time.perf_counter() - start
-    return {"seconds": seconds, "steps": steps, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+    return {"seconds": seconds, "cpu_seconds": cpu, "steps": steps, "parts": parts, "page_faults": faults,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
 def measure(mode: str, bag: Path) -> dict:
@@ -78,6 +132,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20, help="max steps per episode (near-target: 20)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--bag", type=Path, default=None, help="an existing bag instead of synthetic ones")
+    parser.add_argument("--threads", action="store_true",
+                        help="also replay with ReplayConfig(score_threads=2) (a second core scores)")
     parser.add_argument("--child", nargs=2, metavar=("MODE", "BAG"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -97,7 +153,7 @@ def main() -> None:
                 write_synthetic_run(bags[name], SyntheticRun(episodes=episodes, max_steps=args.steps))
                 print(f"wrote {name} bag: {episodes} episodes x {args.steps + 1} observations, "
                       f"{bag_bytes(bags[name]) / 1e6:.0f} MB in {time.perf_counter() - start:.1f} s")
-        modes = ("bare", "bare+decode", "replay")
+        modes = ("bare", "bare+decode", "replay") + (("replay x2",) if args.threads else ())
         runs = {(b, m): [] for b in bags for m in modes}
         for _ in range(args.repeats):
             for b in bags:
@@ -107,16 +163,28 @@ def main() -> None:
             size = bag_bytes(bag) / 1e6
             steps = runs[b, "replay"][0]["steps"]
             print(f"\n{b} bag: {size:.0f} MB, {steps} steps scored")
-            print(f"  {'case':12s} {'steps/s':>22s} {'MB/s':>22s} {'peak RSS MB':>22s}")
+            print(f"  {'case':12s} {'steps/s':>22s} {'MB/s':>22s} {'CPU ms/step':>22s} {'page faults/step':>18s} "
+                  f"{'peak RSS MB':>22s}")
             for m in modes:
                 secs = [r["seconds"] for r in runs[b, m]]
+                cpu = [r["cpu_seconds"] / steps * 1e3 for r in runs[b, m]]
+                faults = [r["page_faults"] / steps for r in runs[b, m]]
                 print(f"  {m:12s} {spread([steps / s for s in secs]):>22s} {spread([size / s for s in secs]):>22s} "
+                      f"{spread(cpu, '{:.3f}'):>22s} {spread(faults, '{:.0f}'):>18s} "
                       f"{spread([r['peak_rss_mb'] for r in runs[b, m]]):>22s}")
-            for base in ("bare", "bare+decode"):
-                ratios = [ref["seconds"] / rep["seconds"] for ref, rep in zip(runs[b, base], runs[b, "replay"],
-                                                                              strict=True)]
-                print(f"  replay / {base} rate: {spread(ratios, '{:.2f}')} (per interleaved pair; target vs "
-                      f"bare >= 0.5)")
+            for case in (m for m in modes if m.startswith("replay")):
+                for base in ("bare", "bare+decode"):
+                    pairs = list(zip(runs[b, base], runs[b, case], strict=True))
+                    ratios = [ref["seconds"] / rep["seconds"] for ref, rep in pairs]
+                    cpu_ratios = [ref["cpu_seconds"] / rep["cpu_seconds"] for ref, rep in pairs]
+                    print(f"  {case} / {base} rate: {spread(ratios, '{:.2f}')} wall, {spread(cpu_ratios, '{:.2f}')} "
+                          f"CPU (per interleaved pair; target vs bare >= 0.5)")
+            split = measure("split", bag)
+            cpu = {k: v / steps * 1e3 for k, v in split["parts"].items()}
+            rest = split["cpu_seconds"] / steps * 1e3 - cpu["walk"] - cpu["decode"] - cpu["score"]
+            print(f"  where a replay step's CPU goes (one timed run, {split['cpu_seconds'] / steps * 1e3:.3f} ms/step): "
+                  f"bag walk {cpu['walk']:.3f}, decode {cpu['decode']:.3f}, scoring {cpu['score']:.3f} (its FFTs "
+                  f"{cpu['fft']:.3f}), rest {rest:.3f} ms")
         if "10x" in bags:
             short = statistics.median(r["peak_rss_mb"] for r in runs["short", "replay"])
             long = statistics.median(r["peak_rss_mb"] for r in runs["10x", "replay"])

@@ -22,7 +22,11 @@ candidate once: all see the same load) and each gets the median and the minimum 
 better estimate of the uncontended cost; at 1 thread the CPU time is the cost least disturbed by
 other processes. The load average is printed before and after.
 
-    .venv/bin/python scripts/bench/separator.py [--repeats 60] [--presets compact paper] [--no-sweep]
+    .venv/bin/python scripts/bench/separator.py [--repeats 60] [--presets compact paper]
+        [--backbones unet mmdensenet] [--no-sweep]
+
+``--backbones mmdensenet`` adds the MMDenseNet-style separator (experiment 5); its ``bare unet`` row
+is still the compact U-Net, so ``clip / bare unet`` there compares the two backbones.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ from m2h_ros.core.audio.stft import DEFAULT_STFT, rebuild_with_phase, stft  # no
 from m2h_ros.models.checkpoint import save_separator  # noqa: E402
 from m2h_ros.models.inference import fuse_for_inference  # noqa: E402
 from m2h_ros.models.separator import (  # noqa: E402
+    BACKBONES,
     PRESET_NAMES,
     Separator,
     SeparatorConfig,
@@ -110,10 +115,10 @@ def relative_error(reference: Separator, fused: Separator, config: SeparatorConf
         return max(float((a - b).abs().max() / a.abs().max()) for a, b in pairs)
 
 
-def bench_preset(name: str, repeats: int) -> dict:
+def bench_config(config: SeparatorConfig, repeats: int) -> dict:
     """{"params", "checkpoint_mb", "fused_rel_error", "numpy": {...}, (batch, threads): {candidate: figures}}."""
     torch.manual_seed(0)
-    config = SeparatorConfig.preset(name)
+    name = config.backbone
     reference = with_running_stats(Separator(config)).eval()
     fused = fuse_for_inference(reference)
     bare = UNet(config.binaural_channels + 1, config.binaural_channels, config.unet_channels).eval()
@@ -182,13 +187,18 @@ def print_preset(name: str, row: dict) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=60)
-    parser.add_argument("--presets", nargs="+", choices=PRESET_NAMES, default=list(PRESET_NAMES))
+    parser.add_argument("--presets", nargs="+", choices=PRESET_NAMES, default=list(PRESET_NAMES),
+                        help="U-Net widths")
+    parser.add_argument("--backbones", nargs="+", choices=BACKBONES, default=["unet"],
+                        help="f^B / f^M networks; mmdensenet has one width of its own (the presets set U-Nets')")
     parser.add_argument("--no-sweep", action="store_true", help="skip the thread sweep over batch sizes")
     args = parser.parse_args()
     print(f"torch {torch.__version__}, {args.repeats} rounds per batch-1 figure, {os.cpu_count()} CPUs, "
           f"load average {load_average()}, OMP_WAIT_POLICY={os.environ['OMP_WAIT_POLICY']}")
-    for name in args.presets:
-        print_preset(name, bench_preset(name, args.repeats))
+    configs = [SeparatorConfig.preset(name) for name in args.presets] if "unet" in args.backbones else []
+    configs += [SeparatorConfig(backbone=name) for name in args.backbones if name != "unet"]
+    for config in configs:
+        print_preset(config.summary, bench_config(config, args.repeats))
     if not args.no_sweep:
         thread_sweep(args.repeats)
     print(f"\nload average at the end {load_average()}")

@@ -1,15 +1,14 @@
 #!/usr/bin/env python3
 """Experiment 7 of the supplementary material: navigation to the target among distractors (SR, SPL).
 
-    python scripts/experiments/navigation.py [--controllers random,move_forward,gan_et_al,move2hear_navigation]
+    python scripts/experiments/navigation.py [--controllers random,move_forward,gan_et_al,av_navigator,move2hear_navigation]
         [--sound-split heard] [--count 100] [--workers 2] [--address ADDR] [--out docs/results/navigation]
 
 Far-target test episodes; each controller must reach the target's node and Stop there (success);
 SPL weighs a success by shortest path / path taken. Two splits: *standard* (any target and
 distractor, the episode files' mix) and *speaker-target* (a speech target among speech distractors,
 S-vs-S: the distractor sounds like the target). The paper's finding: Move2Hear's pi^N + Stop
-navigates best (SR 70.3, SPL 54.9 on the standard split, heard sounds). AV Navigator is not trained
-yet (docs/policies.md); add it with ``--controllers ...,av_navigator`` once it is.
+navigates best (SR 70.3, SPL 54.9 on the standard split, heard sounds).
 """
 
 import os
@@ -29,6 +28,6 @@ def conditions(args):
 
 if __name__ == "__main__":
     sys.exit(sweep_main(None, script=__file__, doc=__doc__, conditions=conditions,
-                        controllers="random,move_forward,gan_et_al,move2hear_navigation", task="far_target",
+                        controllers="random,move_forward,gan_et_al,av_navigator,move2hear_navigation", task="far_target",
                         sound_split="heard", title="Far-target navigation among distractors",
                         xlabel="split (standard: any sounds; speaker-target: speech vs speech)"))

@@ -1,12 +1,16 @@
 """Evaluation jobs on Ray: the same table from 1 and 2 workers, and the same as in-process."""
 
 import dataclasses
+import json
 
+import numpy as np
 import pytest
+from scipy import stats
 
+from m2h_ros.core.results import EpisodeResult, paired_differences
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.jobs import EvalJob, run_eval_job, run_jobs
-from m2h_ros.experiments.sweep import Condition, Sweep, run_sweep, with_estimates, write_sweep
+from m2h_ros.experiments.sweep import SWEEP_KEYS, Condition, Sweep, run_sweep, sweep_jobs, with_estimates, write_sweep
 
 
 @pytest.mark.timeout(300)
@@ -52,3 +56,43 @@ def test_a_sweep_writes_its_table_and_curve(folder_library, fast_acoustics, tmp_
     assert paths["plot"].stat().st_size > 0
     with pytest.raises(ConfigError, match="unknown controller 'teleport'"):
         Sweep(controllers=["teleport"], tasks=["near_target"], sound_splits=["unheard"], conditions=conditions)
+
+
+def _result(controller: str, condition: str, episode: str, final: float) -> EpisodeResult:
+    return EpisodeResult(episode_id=episode, controller=controller, task="near_target", sound_split="heard",
+                         scene_id="s", target_class="speech", si_sdr=[0.0, final], si_sdr_mixture_phase=[0.0, 0.0],
+                         stft_distance=[1.0, 1.0], condition=condition)
+
+
+def test_paired_differences_per_condition_and_between_conditions(tmp_path):
+    finals = {("stand", "a"): (1.0, 2.0), ("move", "a"): (2.0, 4.0), ("stand", "b"): (3.0, 3.0),
+              ("move", "b"): (5.0, 4.0)}
+    results = [_result(c, cond, f"e{i}", v) for (c, cond), values in finals.items() for i, v in enumerate(values)]
+    by_controller = paired_differences(results, reference="stand", by=SWEEP_KEYS)
+    assert [(r["controller"], r["condition"], r["difference"]) for r in by_controller] == [
+        ("move", "a", pytest.approx(1.5)), ("move", "b", pytest.approx(1.5))]
+    by_condition = paired_differences(results, reference="a", by=SWEEP_KEYS, vary="condition")
+    assert [(r["controller"], r["condition"], r["difference"], r["episodes"]) for r in by_condition] == [
+        ("stand", "b", pytest.approx(1.5), 2), ("move", "b", pytest.approx(1.5), 2)]
+    assert by_condition[1]["ci95"] == pytest.approx(stats.t.ppf(0.975, 1) * np.std([3.0, 0.0], ddof=1) / np.sqrt(2))
+    with pytest.raises(ConfigError, match="grouping fields"):
+        paired_differences(results, reference="a", vary="condition")
+    rows = [{"controller": "move", "task": "near_target", "sound_split": "heard", "condition": "a", "x": "a",
+             "series": "", "episodes": 2, "si_sdr": 3.0, "ci95": 1.0}]
+    paths = write_sweep(results, rows, tmp_path, title="t", xlabel="x", command="c", meta={}, started=0.0,
+                        reference="stand", condition_reference="a")
+    table = paths["markdown"].read_text()
+    assert "| move | b | near_target | heard | 2 | +1.50 ±" in table  # vs stand, in condition b
+    assert "minus the 'a' condition's" in table and "| stand | b | near_target | heard | 2 | +1.50 ±" in table
+    assert json.loads(paths["json"].read_text())["meta"]["paired_conditions"][0]["reference"] == "a"
+
+
+def test_a_condition_passes_its_separator_to_the_jobs(folder_library, fast_acoustics):
+    small = {"scene_preset": "small", "near_radius": 2.0, "max_steps": 2, "count": 2, "min_source_distance": 1.0}
+    conditions = [Condition(label=label, x=label, separator=path, episodes=small, env={"acoustics": fast_acoustics})
+                  for label, path in (("shipped", ""), ("other", "/tmp/other.pt"))]
+    sweep = Sweep(controllers=["stand_in_place"], tasks=["near_target"], sound_splits=["unheard"],
+                  conditions=conditions, count=2, chunk=2, library=folder_library)
+    jobs, keys = sweep_jobs(sweep, folder_library)
+    assert [(job.condition, job.separator) for job in jobs] == [("shipped", ""), ("other", "/tmp/other.pt")]
+    assert [key[3] for key in keys] == [0, 1]

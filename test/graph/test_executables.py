@@ -11,10 +11,12 @@ import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 from pipeline_helpers import TINY_SIM, node_env
 
+from m2h_ros.node_configs import PIPELINE_NODES
+
 pytestmark = pytest.mark.graph
 ROOT = Path(__file__).resolve().parents[2]
 ROS2RUN = str(ROOT / "scripts" / "bin" / "ros2run")
-NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node")
+NODES = ("sim_node", *PIPELINE_NODES)
 
 
 def test_ament_index_resolves_packages():

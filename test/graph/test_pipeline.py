@@ -209,17 +209,20 @@ def test_free_running_counts_dropped_steps(small_library, small_data_dir, tmp_pa
 
 
 def test_replayed_bag_scores_equal_the_live_ones(tiny_run):
-    """m2h-eval's core on the recorded bag: the evaluator's results exactly (same code, same data)."""
-    from m2h_ros.io.replay import replay_bag
+    """m2h-eval's core on the recorded bag: the evaluator's results exactly (same code, same data), also
+    with a batch's steps split between two threads."""
+    from m2h_ros.io.replay import ReplayConfig, replay_bag
 
     out, _ = tiny_run
-    replay = replay_bag(out / "bag")
-    assert replay.problems == [] and replay.comparison.mismatches == [], \
-        [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
     live = read_results(out / "scores" / "results.json")
-    assert [r.to_dict() for r in replay.results] == [r.to_dict() for r in live], \
-        (replay.results, live)
-    assert replay.comparison.steps == sum(len(r.si_sdr) for r in live) and replay.comparison.episodes == 2
+    for config in (ReplayConfig(), ReplayConfig(score_threads=2)):
+        replay = replay_bag(out / "bag", config=config)
+        assert replay.problems == [] and replay.comparison.mismatches == [], \
+            [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
+        assert [r.to_dict() for r in replay.results] == [r.to_dict() for r in live], \
+            (replay.results, live)
+        assert replay.comparison.steps == sum(len(r.si_sdr) for r in live) and replay.comparison.episodes == 2
+        assert set(replay.comparison.max_diff.values()) == {0.0}, replay.comparison.max_diff
 
 
 def test_play_binaural_separates_a_file_through_the_live_separator(processes, small_data_dir, tmp_path):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from rosbag2_style import rewrite_as_rosbag2
 
+from m2h_ros.core.results import METRICS
 from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
 from m2h_ros.io.mcap_stream import BagStream
@@ -59,10 +60,12 @@ def test_estimates_logged_episodes_late_are_still_scored(tmp_path):
     same_results(replay.results, live)
 
 
-def test_batch_size_does_not_change_scores(near_bag):
+def test_batch_size_and_threads_do_not_change_scores(near_bag):
     bag, live = near_bag
-    for batch in (1, 3):
-        same_results(replay_bag(bag, config=ReplayConfig(batch_steps=batch)).results, live)
+    for batch, threads in ((1, 1), (3, 1), (16, 2), (3, 3)):
+        replay = replay_bag(bag, config=ReplayConfig(batch_steps=batch, score_threads=threads))
+        same_results(replay.results, live)
+        assert replay.ok and all(replay.comparison.max_diff[metric] == 0.0 for metric in METRICS)
 
 
 def test_far_target_stop_success_and_spl(tmp_path):
@@ -242,18 +245,24 @@ def test_sqlite_storage_is_named(tmp_path):
         replay_bag(tmp_path / "bag")
 
 
-def test_nan_estimate_gives_up_that_episode_only(tmp_path):
+@pytest.mark.parametrize("poisoned_step", [1, 4])
+def test_nan_estimate_gives_up_that_episode_only(tmp_path, poisoned_step):
     bag = tmp_path / "bag"
     with BagWriter(bag) as writer:
         class Poison:
             def write(self, topic, msgtype, timestamp, message):
-                if topic == "/separator/refined" and message.episode_id.endswith("000000") and message.step == 1:
+                if (topic == "/separator/refined" and message.episode_id.endswith("000000")
+                        and message.step == poisoned_step):
                     message.data = np.full_like(message.data, np.nan)
                 writer.write(topic, msgtype, timestamp, message)
         live = write_synthetic_run(bag, NEAR, writer=Poison())
     replay = replay_bag(bag)
     same_results(replay.results, live[1:])
     assert "NaN" in str(replay.problems[0]) and live[0].episode_id in str(replay.problems[0])
+    # split between threads (the NaN in the first or the last share), the same outcome
+    threaded = replay_bag(bag, config=ReplayConfig(score_threads=2))
+    same_results(threaded.results, live[1:])
+    assert [str(p) for p in threaded.problems] == [str(p) for p in replay.problems]
 
 
 def test_cli_writes_tables_plots_and_exit_codes(near_bag, tmp_path, capsys):
@@ -271,4 +280,6 @@ def test_cli_writes_tables_plots_and_exit_codes(near_bag, tmp_path, capsys):
     killed = killed_copy(bag, tmp_path / "killed", 0.5)
     assert m2h_eval([str(killed), "--out", str(tmp_path / "out2"), "--no-plots"]) == 3
     assert m2h_eval([str(tmp_path / "nope"), "--out", str(tmp_path / "out3")]) == 2
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out4"), "--no-plots", "--threads", "2"]) == 0
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out5"), "--threads", "0"]) == 2
     shutil.rmtree(killed)

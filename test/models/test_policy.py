@@ -142,7 +142,7 @@ def test_checkpoint_round_trip_and_errors(tmp_path):
         load_policy(tmp_path / "none.pt")
 
 
-@pytest.mark.parametrize("kind", ["quality", "navigation"])
+@pytest.mark.parametrize("kind", ["quality", "navigation", "novelty", "av_navigator"])
 def test_shipped_policies_act_as_with_nchw_convolutions(kind):
     """The encoders compute in channels_last (the speed path); a checkpoint trained before gives the
     numbers of the NCHW path it was trained with, to float tolerance, in a step and over a sequence."""
@@ -150,7 +150,7 @@ def test_shipped_policies_act_as_with_nchw_convolutions(kind):
 
     import m2h_ros.models.policy as policy_module  # noqa: PLC0415
 
-    net = load_policy(Path(policy_module.__file__).parent / "default" / f"policy_{kind}.pt").net
+    net = load_policy(Path(policy_module.__file__).parent / "default" / f"policy_{kind}.pt", policy_kind=kind).net
     t, n = 6, 4
     inputs = random_inputs(net.config, t * n, seed=5)
     starts = torch.zeros(t, n, dtype=torch.bool)
@@ -160,7 +160,7 @@ def test_shipped_policies_act_as_with_nchw_convolutions(kind):
     with torch.no_grad():
         fast_step = net.step(inputs.index(slice(0, n)), hidden0, starts[0])
         fast = net.evaluate(inputs, hidden0, starts)
-        cl = PolicyInputs(*(x.contiguous(memory_format=torch.channels_last) for x in inputs))
+        cl = PolicyInputs(*(None if x is None else x.contiguous(memory_format=torch.channels_last) for x in inputs))
         already = net.evaluate(cl, hidden0, starts)
         original = policy_module.ConvEncoder.forward
         try:

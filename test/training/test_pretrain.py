@@ -17,7 +17,14 @@ from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.separator import Separator, SeparatorConfig
 from m2h_ros.training.passive_eval import ESTIMATES, evaluate_passive, gap_closed, summarize
-from m2h_ros.training.pretrain_separator import PretrainConfig, _refine_sequences, pretrain, state_path
+from m2h_ros.training.pretrain_separator import (
+    PretrainConfig,
+    _refine_sequences,
+    build_parser,
+    config_from_args,
+    pretrain,
+    state_path,
+)
 
 TINY = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)
 
@@ -194,3 +201,12 @@ def test_config_validation(small_stream):
     with pytest.raises(ConfigError, match="single observations"):
         PretrainConfig(train_data=dataclasses.replace(small_stream, steps=2))
     assert isinstance(Separator(PretrainConfig().model), Separator)
+
+
+def test_the_command_line_selects_the_backbone():
+    parser = build_parser()
+    assert config_from_args(parser.parse_args([])).model == SeparatorConfig.preset("compact")
+    dense = config_from_args(parser.parse_args(["--backbone", "mmdensenet", "--epochs", "3"]))
+    assert dense.model == SeparatorConfig(backbone="mmdensenet") and dense.epochs == 3
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--backbone", "transformer"])

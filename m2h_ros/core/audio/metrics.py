@@ -21,9 +21,19 @@ from m2h_ros.errors import AudioError
 SILENT_ENERGY_PER_SAMPLE = 1e-12
 
 
+def all_finite(x: np.ndarray) -> bool:
+    """``np.all(np.isfinite(x))``; a complex array is checked as its real and imaginary floats, which
+    numpy does several times faster than complex ``isfinite`` (same answer: both parts finite)."""
+    x = np.asarray(x)
+    if not np.iscomplexobj(x):
+        return bool(np.all(np.isfinite(x)))
+    parts = (x.reshape(-1).view(x.real.dtype),) if x.flags.c_contiguous else (x.real, x.imag)
+    return all(bool(np.all(np.isfinite(part))) for part in parts)
+
+
 def _finite(x: np.ndarray, name: str) -> np.ndarray:
     x = np.asarray(x)
-    if not np.all(np.isfinite(x)):
+    if not all_finite(x):
         raise AudioError(f"{name} holds NaN or infinite values")
     return x
 

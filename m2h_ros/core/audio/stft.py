@@ -27,6 +27,7 @@ import scipy.fft
 import scipy.signal
 
 from m2h_ros.config import reject_unknown_fields
+from m2h_ros.core.audio.metrics import all_finite
 from m2h_ros.errors import AudioError, ConfigError
 
 Reshapeable = TypeVar("Reshapeable")  # numpy array or torch tensor: slicing only uses .shape and .reshape
@@ -130,7 +131,7 @@ def _ola_envelope(config: StftConfig, n_frames: int, dtype: np.dtype) -> np.ndar
 
 
 def _check_finite(x: np.ndarray, what: str) -> None:
-    if not np.all(np.isfinite(x)):
+    if not all_finite(x):
         raise AudioError(f"{what} holds NaN or infinite values")
 
 

@@ -6,7 +6,7 @@ import scipy.signal
 import torch
 from torchmetrics.functional.audio import scale_invariant_signal_distortion_ratio
 
-from m2h_ros.core.audio.metrics import delayed, si_sdr, stft_distance
+from m2h_ros.core.audio.metrics import all_finite, delayed, si_sdr, stft_distance
 from m2h_ros.core.audio.stft import stft
 from m2h_ros.errors import AudioError
 
@@ -92,6 +92,22 @@ def test_stft_distance_is_frobenius_norm() -> None:
         stft_distance(a[0] * np.nan, b[0])
     with pytest.raises(AudioError, match="shapes"):
         stft_distance(a[0], b)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.complex64, np.complex128])
+def test_all_finite_is_numpys_isfinite_for_every_layout(dtype) -> None:
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((3, 5, 4)).astype(dtype)
+    if np.iscomplexobj(x):
+        x += 1j * rng.standard_normal(x.shape)
+    for bad in (np.nan, np.inf, -np.inf, complex(0, np.nan), complex(np.inf, 0)):
+        if isinstance(bad, complex) and not np.iscomplexobj(x):
+            continue
+        for view in (lambda a: a, lambda a: a.transpose(2, 0, 1), lambda a: a[:, ::2], lambda a: a[1, 2, 3]):
+            y = x.copy()
+            assert all_finite(view(y)) and np.all(np.isfinite(view(y)))
+            y[1, 2, 3] = bad
+            assert not all_finite(view(y)), (bad, view(y).shape)
 
 
 def test_delayed_shifts_with_zeros_in_front() -> None:

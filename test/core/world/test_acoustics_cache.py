@@ -5,6 +5,7 @@ import os
 import numpy as np
 import pytest
 
+from m2h_ros.core.sounds.sources import sources_dir
 from m2h_ros.core.world.acoustics import AcousticsConfig, assemble, simulate_source
 from m2h_ros.core.world.rir_bank import RirBank, bank_dir
 from m2h_ros.core.world.scene import generate_scene
@@ -20,6 +21,8 @@ def scene():
 
 @pytest.fixture()
 def data_root(tmp_path, monkeypatch):
+    # The banks go to a fresh data dir; the KEMAR HRTF they are rendered with stays where setup put it.
+    (tmp_path / "sound_sources").symlink_to(sources_dir())
     monkeypatch.setenv("M2H_DATA_DIR", str(tmp_path))
     return tmp_path
 
