@@ -61,7 +61,7 @@ def load_run(directory: Path) -> RewardRun:
     """A finished pi^Q run directory (config.json, policy.pt, log.csv), f^R frozen."""
     from m2h_ros.models.policy import load_policy  # noqa: PLC0415  (torch, only when runs are read)
 
-    directory = Path(directory)
+    directory = Path(directory).resolve()  # the policy path goes to Ray workers, whose folder may differ
     try:
         config = json.loads((directory / "config.json").read_text())
         with open(directory / "log.csv", newline="") as stream:
