@@ -10,13 +10,17 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
    exactly what a controller sees (``agents.rollout.controller_observation`` -> ``policy_inputs``)
    and samples an action; the env steps (same-step auto-reset; the terminal observation is separated
    too, continuing its episode's memory, so the last reward sees the episode's final estimate).
-2. Rewards by kind: ``quality`` (Move2Hear pi^Q) NMSE_t - NMSE_{t+1} of the refined estimate against
-   the ground-truth monaural magnitude (NMSE = mean squared error / mean squared target), plus
-   ``-final_nmse_weight`` x NMSE at the episode's last step (the original code's formulation; it adds
-   that term one step early because Habitat's auto-reset hides the last observation, here it lands on
-   the last step itself); ``navigation`` (pi^N + Stop, AV Navigator) the env's reward (+10 for Stop
-   at the target, +-0.25 per metre of geodesic distance, -0.01 per step); ``novelty`` 1 / sqrt(n)
-   with n the visits (this one included) of the node the step arrives at in this episode.
+2. Rewards by kind: ``quality`` (Move2Hear pi^Q) the improvement of the refined estimate's quality
+   measure (``quality_reward``), plus ``final_weight`` x the measure at the episode's last step (the
+   original code's formulation; it adds that term one step early because Habitat's auto-reset hides
+   the last observation, here it lands on the last step itself). ``nmse`` (default, the original's):
+   NMSE_t - NMSE_{t+1} against the ground-truth monaural magnitude (NMSE = mean squared error / mean
+   squared target), -10 x NMSE last; ``snr``: SNR_{t+1} - SNR_t in dB (SNR = -10 log10 NMSE),
+   +10 x SNR dB last; ``si_sdr``: SI-SDR_{t+1} - SI-SDR_t in dB of the waveform rebuilt with the
+   ground-truth monaural phase, as the evaluation scores it, +10 x SI-SDR dB last. ``navigation``
+   (pi^N + Stop, AV Navigator) the env's reward (+10 for Stop at the target, +-0.25 per metre of
+   geodesic distance, -0.01 per step); ``novelty`` 1 / sqrt(n) with n the visits (this one included)
+   of the node the step arrives at in this episode.
 3. GAE(gamma, lambda) advantages, normalised (over all workers with DD-PPO); an episode end is
    terminal (no bootstrap), as in the original.
 4. ``ppo_epochs`` passes of ``n_minibatches`` minibatches (whole slot sequences, the GRU re-run from
@@ -64,7 +68,8 @@ import torch.nn.functional as F  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.agents.rollout import controller_observation  # noqa: E402
-from m2h_ros.core.audio.stft import stft, to_slices  # noqa: E402
+from m2h_ros.core.audio.metrics import si_sdr  # noqa: E402
+from m2h_ros.core.audio.stft import StftConfig, rebuild_ground_truth_phase, stft, to_slices  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
@@ -95,8 +100,12 @@ KINDS = {
     "novelty": KindSpec("separation", False, "novelty", "near_target", 0.2, False),
     "av_navigator": KindSpec("mixture", True, "navigation", "far_target", 0.2, False),
 }
+WINDOWED = ("return", "final_nmse", "final_quality", "success")  # per-episode values, logged as 50-episode means
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
+# pi^Q's quality measures (the ``quality`` reward is the improvement of one): NMSE of the magnitude,
+# SNR of the magnitude in dB, SI-SDR in dB of the ground-truth-phase rebuild (the evaluation's score).
+QUALITY_REWARDS = ("nmse", "snr", "si_sdr")
 SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
 
 
@@ -127,7 +136,8 @@ class PPOConfig:
     linear_decay: bool = True  # lr and clip decay linearly to 0 over ``updates``
     train_refiner: bool | None = None  # None: the kind's
     refiner_epochs: int = 4  # passes of f^R's L1 over each rollout (the original: ppo_epoch)
-    final_nmse_weight: float = 10.0  # quality: -weight x NMSE at the last step
+    quality_reward: str = "nmse"  # quality: the measure whose improvement is the reward (QUALITY_REWARDS)
+    final_weight: float = 10.0  # quality: + weight x the measure at the last step (-weight x NMSE for nmse)
     seed: int = 0
     threads: int = 2  # torch intra-op threads and env render threads
     checkpoint_every: int = 25  # updates
@@ -150,7 +160,9 @@ class PPOConfig:
             value = getattr(self, name)
             if not (isinstance(value, float) and 0 < value <= 1):
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a float in (0, 1]")
-        for name in ("action_coef", "value_coef", "max_grad_norm", "final_nmse_weight"):
+        if self.quality_reward not in QUALITY_REWARDS:
+            raise ConfigError(f"PPOConfig.quality_reward={self.quality_reward!r} must be one of {QUALITY_REWARDS}")
+        for name in ("action_coef", "value_coef", "max_grad_norm", "final_weight"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a number >= 0")
@@ -240,6 +252,26 @@ def nmse(estimate: np.ndarray, target: np.ndarray) -> np.ndarray:
     axes = tuple(range(1, target.ndim))
     error = np.mean(np.square(estimate - target), axis=axes, dtype=np.float64)
     return error / np.maximum(np.mean(np.square(target), axis=axes, dtype=np.float64), 1e-12)
+
+
+def quality_measure(name: str, estimate: np.ndarray, target_mag: np.ndarray, target_wave: np.ndarray, *,
+                    config: StftConfig) -> np.ndarray:
+    """(B,) quality measure ``name`` (QUALITY_REWARDS) of monaural magnitudes (B, F, T) against the
+    ground-truth magnitudes (B, F, T) and dry monaural clips (B, N) of the target."""
+    if name == "si_sdr":
+        return si_sdr(rebuild_ground_truth_phase(estimate, target_wave, config=config), target_wave)
+    error = nmse(estimate, target_mag)
+    return error if name == "nmse" else -10.0 * np.log10(np.maximum(error, 1e-12))
+
+
+def quality_reward(name: str, before: np.ndarray, after: np.ndarray, last: np.ndarray, *,
+                   final_weight: float) -> np.ndarray:
+    """(B,) pi^Q's reward of a step that moved each slot's measure ``name`` from ``before`` to ``after``:
+    the improvement, plus ``final_weight`` x the measure where ``last`` (B,) bool (the episode ended)."""
+    sign = -1.0 if name == "nmse" else 1.0  # NMSE falls as the estimate improves, the dB measures rise
+    reward = sign * (after - before)
+    reward[last] += sign * final_weight * after[last]
+    return reward
 
 
 def gae(rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, next_value: torch.Tensor, *,
@@ -364,7 +396,7 @@ class PPOTrainer:
         self.generator = torch.Generator().manual_seed(config.seed * 1_000_003 + self.rank)
         self.rng = np.random.default_rng([config.seed, self.rank])
         self.update, self.env_steps, self.history = 0, 0, []
-        self.windows = {"return": deque(maxlen=50), "final_nmse": deque(maxlen=50), "success": deque(maxlen=50)}
+        self.windows = {key: deque(maxlen=50) for key in WINDOWED}
         self.times = np.zeros(5)  # sim, separator, acting, policy update, f^R update (seconds, this worker)
         self.wall_before = 0.0  # seconds spent in earlier sessions of this run
         self.resume_path = self.out_dir / ("resume.pt" if self.world == 1 else f"resume.rank{self.rank}.pt")
@@ -377,6 +409,7 @@ class PPOTrainer:
         self.starts = np.ones(n, bool)
         self.hidden = self.net.initial_hidden(n)
         self.returns, self.lengths = np.zeros(n), np.zeros(n, np.int64)
+        self.target_wave = info["target_monaural"].copy()
         self.target_mag = np.abs(stft(info["target_monaural"], config=self.loaded.stft)).astype(np.float32)
         self.visits = np.zeros((n, self.env.max_nodes), np.int64)
         self.visits[np.arange(n), self.obs["node"]] = 1
@@ -386,8 +419,8 @@ class PPOTrainer:
         # The memory each slot's current estimate was refined with, which f^R trains on (all slots
         # start afresh here); kept only while f^R trains.
         self.previous_memory = torch.zeros_like(self.runner.memory) if self.refining else None
-        self.nmse_now = nmse(self.separation.refined, self.target_mag)
-        self.final_nmse = np.zeros(n)
+        self.measure_now = self._measure(self.separation.refined)
+        self.final_nmse, self.final_quality = np.zeros(n), np.zeros(n)
 
     def _classes(self) -> np.ndarray:
         return self.runner.class_indices([e.target_category for e in self.env.current_episodes])
@@ -452,6 +485,7 @@ class PPOTrainer:
                           "success": float(info["final_info"]["success"][slot])}
                 if self.config.spec.reward == "quality":
                     record["final_nmse"] = float(self.final_nmse[slot])
+                    record["final_quality"] = float(self.final_quality[slot])
                 finished.append(record)
             self.returns[ended], self.lengths[ended] = 0.0, 0
             rollout.rewards.append(torch.from_numpy(reward.astype(np.float32)))
@@ -482,18 +516,27 @@ class PPOTrainer:
             self.visits[ended] = 0
             self.visits[ended, obs["node"][ended]] = 1
             return reward
-        # quality: NMSE_t - NMSE_{t+1} of the refined estimate; -w x NMSE at the last step.
+        # quality: the refined estimate's improvement; + w x the measure at the last step.
+        cfg = self.config
         refined = separation.refined.copy()
         if final is not None:
             refined[ended] = final.refined
-        after = nmse(refined, self.target_mag)
-        reward = self.nmse_now - after
-        reward[ended] -= self.config.final_nmse_weight * after[ended]
-        self.final_nmse = after
+        after = self._measure(refined)
+        last = np.zeros(len(after), bool)
+        last[ended] = True
+        reward = quality_reward(cfg.quality_reward, self.measure_now, after, last, final_weight=cfg.final_weight)
+        self.final_quality = after
+        self.final_nmse = after if cfg.quality_reward == "nmse" else nmse(refined, self.target_mag)
         if len(ended):
+            self.target_wave[ended] = info["target_monaural"][ended]
             self.target_mag[ended] = np.abs(stft(info["target_monaural"][ended], config=self.loaded.stft))
-        self.nmse_now = nmse(separation.refined, self.target_mag)
+        self.measure_now = self._measure(separation.refined)
         return reward
+
+    def _measure(self, refined: np.ndarray) -> np.ndarray:
+        """(n,) the reward's quality measure of each slot's estimate against its current target."""
+        return quality_measure(self.config.quality_reward, refined, self.target_mag, self.target_wave,
+                               config=self.loaded.stft)
 
     # ------------------------------------------------------------------ update
     def _decay(self) -> float:
@@ -599,7 +642,8 @@ class PPOTrainer:
             "hidden": self.hidden.cpu(),
             "episode": _to_tensors({"starts": self.starts, "returns": self.returns, "lengths": self.lengths,
                                     "target_mag": self.target_mag, "visits": self.visits,
-                                    "nmse_now": self.nmse_now, "final_nmse": self.final_nmse,
+                                    "target_wave": self.target_wave, "measure_now": self.measure_now,
+                                    "final_nmse": self.final_nmse, "final_quality": self.final_quality,
                                     "last_classes": self.last_classes}),
         }
 
@@ -630,7 +674,8 @@ class PPOTrainer:
         self.previous_memory = None if previous is None else previous.to(self.device)
         self.hidden = state["hidden"].to(self.device)
         episode = _to_arrays(state["episode"])
-        for key in ("starts", "returns", "lengths", "target_mag", "visits", "nmse_now", "final_nmse", "last_classes"):
+        for key in ("starts", "returns", "lengths", "target_mag", "target_wave", "visits", "measure_now", "final_nmse",
+                    "final_quality", "last_classes"):
             setattr(self, key, episode[key])
 
     def _write(self) -> Path:
@@ -703,7 +748,7 @@ class PPOTrainer:
 
     def _log(self, finished: list[dict[str, float]], losses: dict[str, float], seconds: float, cpu: float,
              times: np.ndarray) -> None:
-        keys = ("return", "final_nmse", "success")
+        keys = WINDOWED
         local = np.array([len(finished)] + [sum(r.get(k, 0.0) for r in finished) for k in keys])
         totals = _all_reduce_sum(local, self.world, self.device)
         episodes = int(totals[0])
@@ -718,6 +763,7 @@ class PPOTrainer:
         self.history.append({
             "update": self.update, "env_steps": self.env_steps, "episodes": episodes,
             "return_window": window("return"), "final_nmse_window": window("final_nmse"),
+            "final_quality_window": window("final_quality"),
             "success_window": window("success"), **losses, "lr": self.config.lr * self._decay(),
             "sps": steps / seconds, "cpu_ms_per_step": 1e3 * cpu * self.world / steps, **{f"{part}_share": float(share / seconds)
                                        for part, share in zip(TIMED_PARTS, times, strict=True)},
@@ -755,6 +801,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="passes of f^R's L1 per update (quality)")
     parser.add_argument("--frozen-refiner", action="store_true",
                         help="keep the separator's f^R as it is (quality trains it by default)")
+    parser.add_argument("--quality-reward", default=PPOConfig.quality_reward, choices=QUALITY_REWARDS,
+                        help="quality: the measure whose improvement is the reward (nmse: the original's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=PPOConfig.threads)
     parser.add_argument("--checkpoint-every", type=int, default=PPOConfig.checkpoint_every)
@@ -768,7 +816,8 @@ def main(argv: list[str] | None = None) -> int:
     config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
                        env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                        n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
-                       train_refiner=False if args.frozen_refiner else None, seed=args.seed, threads=args.threads,
+                       train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
+                       seed=args.seed, threads=args.threads,
                        checkpoint_every=args.checkpoint_every, device=args.device)
     command = shlex.join(["python", "scripts/train_policy.py", *(sys.argv[1:] if argv is None else argv)])
     result = train(config, SoundLibrary.load(), out_dir=args.out or Path("runs") / f"policy_{args.kind}",

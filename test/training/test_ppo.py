@@ -1,5 +1,7 @@
-"""PPO on a tiny config: the quality reward telescopes to the episode's NMSE change, GAE matches a hand
-computation, a run writes loadable checkpoints and logs, and a resumed run equals an uninterrupted one."""
+"""PPO on a tiny config: each quality reward has the right size on a constructed estimate and telescopes
+to the episode's change of its measure, GAE matches a hand computation, a run writes loadable
+checkpoints and logs, a resumed run equals an uninterrupted one, and experiment 6 (m2h_ros/experiments/
+reward.py) reads finished runs with their training time and refuses runs that differ in more than the reward."""
 
 import csv
 import dataclasses
@@ -8,13 +10,16 @@ import numpy as np
 import pytest
 import torch
 
+from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
 from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
-from m2h_ros.errors import CheckpointError
+from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.experiments import reward
 from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
-from m2h_ros.training.ppo import PPOConfig, PPOTrainer, gae, nmse, train
+from m2h_ros.training.ppo import (QUALITY_REWARDS, PPOConfig, PPOTrainer, gae, nmse, quality_measure,
+                                  quality_reward, train)
 
 TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)  # as separator_path's
 STEPS = 4
@@ -46,20 +51,63 @@ def test_nmse_is_relative_to_the_target_power():
     np.testing.assert_allclose(nmse(target * 1.5, target), [0.25, 0.25])
 
 
-def test_quality_rewards_telescope_to_the_episode_nmse_change(fast_env, separator_path, folder_library, tmp_path):
-    trainer = PPOTrainer(tiny(fast_env, separator_path), folder_library, out_dir=tmp_path, progress=False)
+def test_each_quality_reward_has_the_size_of_its_measures_improvement():
+    """An estimate whose magnitude error halves: NMSE falls to a quarter (reward 3/4 of it), SNR rises by
+    20 log10 2 = 6.02 dB exactly, SI-SDR of the ground-truth-phase rebuild by ~6.02 dB (the error, of
+    random sign in every bin, rebuilds into a waveform nearly orthogonal to the target); the last step adds
+    -10 x NMSE or +10 x the dB measure."""
+    rng = np.random.default_rng(0)
+    wave = rng.standard_normal((3, DEFAULT_STFT.clip_samples)).astype(np.float32)
+    target = np.abs(stft(wave))
+    error = 0.3 * target * rng.choice([-1.0, 1.0], target.shape).astype(np.float32)  # magnitudes stay >= 0
+    worse, better = target + error, target + 0.5 * error
+    last = np.array([False, True, False])
+
+    def measure(name, estimate):
+        return quality_measure(name, estimate, target, wave, config=DEFAULT_STFT)
+
+    before, after = measure("nmse", worse), measure("nmse", better)
+    np.testing.assert_allclose(after, before / 4, rtol=1e-5)
+    reward = quality_reward("nmse", before, after, last, final_weight=10.0)
+    np.testing.assert_allclose(reward, 0.75 * before - 10.0 * after * last, rtol=1e-5)
+    original = before - after  # the formulation before quality_reward existed: the default is bit-identical
+    original[last] -= 10.0 * after[last]
+    np.testing.assert_array_equal(reward, original)
+    for name in ("snr", "si_sdr"):
+        before, after = measure(name, worse), measure(name, better)
+        reward = quality_reward(name, before, after, last, final_weight=10.0)
+        np.testing.assert_allclose(reward[~last], 20 * np.log10(2), rtol=1e-5 if name == "snr" else 0.02)
+        np.testing.assert_allclose(reward[last], after[last] - before[last] + 10.0 * after[last], rtol=1e-12)
+    # SI-SDR is measured on the waveform rebuilt with the target's phase: the exact estimate's is ~perfect.
+    assert np.all(measure("si_sdr", target) > 60) and np.all(measure("si_sdr", better) < 30)
+    with pytest.raises(ConfigError, match="quality_reward"):
+        PPOConfig(quality_reward="pesq")
+
+
+@pytest.mark.parametrize("name", QUALITY_REWARDS)
+def test_quality_rewards_telescope_to_the_episodes_change(name, fast_env, separator_path, folder_library, tmp_path):
+    trainer = PPOTrainer(tiny(fast_env, separator_path, quality_reward=name), folder_library, out_dir=tmp_path,
+                         progress=False)
     try:
         trainer._begin()
-        first = trainer.nmse_now.copy()
+        first = trainer.measure_now.copy()
         rollout, _, finished = trainer._collect()  # n_steps == episode length: every slot ends at the last step
     finally:
         trainer.env.close()
     assert len(finished) == 2 and all(r["length"] == STEPS for r in finished)
     total = torch.stack(rollout.rewards).sum(dim=0).numpy()
-    last = np.array([r["final_nmse"] for r in finished])
-    np.testing.assert_allclose(total, first - last - 10.0 * last, rtol=1e-5, atol=1e-6)
+    last = np.array([r["final_quality"] for r in finished])
+    final_nmse = np.array([r["final_nmse"] for r in finished])
+    if name == "nmse":
+        np.testing.assert_allclose(total, first - last - 10.0 * last, rtol=1e-5, atol=1e-6)
+        np.testing.assert_array_equal(last, final_nmse)
+        assert np.all(first > 0)
+    else:
+        np.testing.assert_allclose(total, last - first + 10.0 * last, rtol=1e-5, atol=1e-5)
+    if name == "snr":
+        np.testing.assert_allclose(last, -10 * np.log10(final_nmse), rtol=1e-9)
     assert torch.stack(rollout.dones)[-1].all() and not torch.stack(rollout.dones)[:-1].any()
-    assert np.all(first > 0) and np.all(np.isfinite(total))
+    assert np.all(np.isfinite(total))
 
 
 def test_the_refiner_learns_from_the_memory_acting_used(fast_env, separator_path, folder_library, tmp_path):
@@ -210,3 +258,35 @@ def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folde
         for name, tensor in plain.items():
             torch.testing.assert_close(fast[name], tensor, rtol=1e-4, atol=1e-6, msg=name)
     assert any(not torch.equal(t, start[0][n]) for n, t in fast_weights[0].items())  # the update did move them
+
+
+
+def test_reward_experiment_reads_compares_and_plots_runs(fast_env, separator_path, folder_library, tmp_path):
+    config = tiny(fast_env, separator_path, updates=1, train_refiner=False)
+    for name in ("nmse", "snr"):
+        train(dataclasses.replace(config, quality_reward=name), folder_library, out_dir=tmp_path / name,
+              progress=False, command=f"train {name}")
+    runs = [reward.load_run(tmp_path / name) for name in ("nmse", "snr")]
+    assert [r.label for r in runs] == ["pi^Q (nmse)", "pi^Q (snr)"]
+    reward.check_comparable(runs)
+    timing = runs[1].timing()
+    assert timing["updates"] == 1 and timing["env_steps"] == 2 * STEPS and timing["command"] == "train snr"
+    assert timing["env_steps_per_s"] == pytest.approx(timing["env_steps"] / timing["wall_seconds"])
+    assert timing["median_update_env_steps_per_s"] == pytest.approx(np.median([r["sps"] for r in runs[1].log]))
+    table = reward.timing_table(runs)
+    assert table.count("\n") == 4 and "pi^Q (snr) | 1 | 8 |" in table
+    png = reward.plot_training(runs, tmp_path / "curves.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    with pytest.raises(ConfigError, match="share a reward"):
+        reward.check_comparable([runs[0], runs[0]])
+    train(dataclasses.replace(config, quality_reward="si_sdr", seed=1), folder_library, out_dir=tmp_path / "seed1",
+          progress=False)
+    with pytest.raises(ConfigError, match="differs .* in seed$"):
+        reward.check_comparable([runs[0], reward.load_run(tmp_path / "seed1")])
+    train(dataclasses.replace(config, train_refiner=True), folder_library, out_dir=tmp_path / "refined",
+          progress=False)
+    with pytest.raises(ConfigError, match="trained f\\^R"):
+        reward.load_run(tmp_path / "refined")
+    with pytest.raises(ConfigError, match="not a finished training run"):
+        reward.load_run(tmp_path / "missing")
