@@ -68,8 +68,7 @@ import torch.nn.functional as F  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.agents.rollout import controller_observation  # noqa: E402
-from m2h_ros.core.audio.metrics import si_sdr  # noqa: E402
-from m2h_ros.core.audio.stft import StftConfig, rebuild_ground_truth_phase, stft, to_slices  # noqa: E402
+from m2h_ros.core.audio.stft import stft, to_slices  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
@@ -80,6 +79,7 @@ from m2h_ros.models.policy import PRESET_NAMES, PolicyConfig, PolicyInputs, Poli
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
+from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -103,9 +103,6 @@ KINDS = {
 WINDOWED = ("return", "final_nmse", "final_quality", "success")  # per-episode values, logged as 50-episode means
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
-# pi^Q's quality measures (the ``quality`` reward is the improvement of one): NMSE of the magnitude,
-# SNR of the magnitude in dB, SI-SDR in dB of the ground-truth-phase rebuild (the evaluation's score).
-QUALITY_REWARDS = ("nmse", "snr", "si_sdr")
 SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
 
 
@@ -243,35 +240,6 @@ def _all_reduce_sum(values: np.ndarray, world: int, device: torch.device) -> np.
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def nmse(estimate: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(B,) mean squared error of magnitudes (B, ...) over the target's mean square."""
-    # float64 sums: numpy's float32 reductions round differently with the array's memory alignment,
-    # which would make a resumed run (arrays loaded from a file) drift from an uninterrupted one.
-    axes = tuple(range(1, target.ndim))
-    error = np.mean(np.square(estimate - target), axis=axes, dtype=np.float64)
-    return error / np.maximum(np.mean(np.square(target), axis=axes, dtype=np.float64), 1e-12)
-
-
-def quality_measure(name: str, estimate: np.ndarray, target_mag: np.ndarray, target_wave: np.ndarray, *,
-                    config: StftConfig) -> np.ndarray:
-    """(B,) quality measure ``name`` (QUALITY_REWARDS) of monaural magnitudes (B, F, T) against the
-    ground-truth magnitudes (B, F, T) and dry monaural clips (B, N) of the target."""
-    if name == "si_sdr":
-        return si_sdr(rebuild_ground_truth_phase(estimate, target_wave, config=config), target_wave)
-    error = nmse(estimate, target_mag)
-    return error if name == "nmse" else -10.0 * np.log10(np.maximum(error, 1e-12))
-
-
-def quality_reward(name: str, before: np.ndarray, after: np.ndarray, last: np.ndarray, *,
-                   final_weight: float) -> np.ndarray:
-    """(B,) pi^Q's reward of a step that moved each slot's measure ``name`` from ``before`` to ``after``:
-    the improvement, plus ``final_weight`` x the measure where ``last`` (B,) bool (the episode ended)."""
-    sign = -1.0 if name == "nmse" else 1.0  # NMSE falls as the estimate improves, the dB measures rise
-    reward = sign * (after - before)
-    reward[last] += sign * final_weight * after[last]
-    return reward
 
 
 def gae(rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, next_value: torch.Tensor, *,

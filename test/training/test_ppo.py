@@ -18,8 +18,8 @@ from m2h_ros.experiments import reward
 from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
-from m2h_ros.training.ppo import (QUALITY_REWARDS, PPOConfig, PPOTrainer, gae, nmse, quality_measure,
-                                  quality_reward, train)
+from m2h_ros.training.ppo import PPOConfig, PPOTrainer, gae, train
+from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward
 
 TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)  # as separator_path's
 STEPS = 4
