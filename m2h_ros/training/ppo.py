@@ -498,12 +498,15 @@ class PPOTrainer:
         if len(ended):
             self.target_wave[ended] = info["target_monaural"][ended]
             self.target_mag[ended] = np.abs(stft(info["target_monaural"][ended], config=self.loaded.stft))
-        self.measure_now = self._measure(separation.refined)
+        # Slots that go on keep their estimate and target: only the new episodes' measure is new.
+        self.measure_now = after.copy()
+        if len(ended):
+            self.measure_now[ended] = self._measure(separation.refined[ended], ended)
         return reward
 
-    def _measure(self, refined: np.ndarray) -> np.ndarray:
-        """(n,) the reward's quality measure of each slot's estimate against its current target."""
-        return quality_measure(self.config.quality_reward, refined, self.target_mag, self.target_wave,
+    def _measure(self, refined: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """The reward's quality measure of the estimates of slots ``rows`` against their current targets."""
+        return quality_measure(self.config.quality_reward, refined, self.target_mag[rows], self.target_wave[rows],
                                config=self.loaded.stft)
 
     # ------------------------------------------------------------------ update
