@@ -16,7 +16,10 @@ One *sequence* of a batch:
    the augmentation (training only): each source's clip scaled by a gain uniform in +-``gain_db`` dB
    (target and distractors drawn independently) and, in a ``noise_fraction`` of the sequences,
    microphone noise of a level drawn from ``noise_levels``: white noise per ear of std level x the
-   RMS of the clean mixture, the environment's ``EnvConfig.mic_noise`` model.
+   RMS of the clean mixture, the environment's ``EnvConfig.mic_noise`` model; and, with ``eq_db`` > 0, a
+   random smooth **spectral colouring** of each source (see :func:`colouring_gains`): a sound of the
+   same class recorded elsewhere differs from the heard clips mostly in its spectral envelope, which a
+   separator otherwise learns clip by clip.
 
 Per observation a batch holds |STFT| of the (augmented) binaural mixture, what the separator takes,
 and |STFT| of the target's share of it (its render x gain / number of sources: the mixture is the
@@ -92,6 +95,7 @@ class StreamConfig:
     gain_db: float = 0.0  # per-source gain uniform in [-gain_db, +gain_db] dB
     noise_levels: tuple[float, ...] = ()  # microphone noise levels, one drawn per noisy sequence
     noise_fraction: float = 0.0  # share of sequences with microphone noise
+    eq_db: float = 0.0  # per-source spectral colouring of at most this many dB (0: none)
     seed: int = 0
     env: EnvConfig = field(default_factory=_audio_only)
 
@@ -111,8 +115,10 @@ class StreamConfig:
         if too_short:
             raise ConfigError(f"StreamConfig.steps={self.steps} needs episodes of at least {self.steps - 1} "
                               f"steps; {too_short[0]} has {too_short[0].steps}")
-        if not (np.isfinite(self.gain_db) and 0 <= self.gain_db <= 20):
-            raise ConfigError(f"StreamConfig.gain_db must be in [0, 20], got {self.gain_db!r}")
+        for name in ("gain_db", "eq_db"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and 0 <= value <= 20):
+                raise ConfigError(f"StreamConfig.{name} must be in [0, 20], got {value!r}")
         if not 0 <= self.noise_fraction <= 1 or (self.noise_fraction > 0 and not self.noise_levels):
             raise ConfigError(f"StreamConfig.noise_fraction must be in [0, 1] (> 0 needs noise_levels), "
                               f"got {self.noise_fraction!r} with levels {self.noise_levels}")
@@ -124,11 +130,11 @@ class StreamConfig:
 
     @classmethod
     def training(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 1, scenes: int | None = None,
-                 source_nodes: int | None = None) -> StreamConfig:
+                 source_nodes: int | None = None, eq_db: float = 0.0) -> StreamConfig:
         """Train scenes, heard sounds, near and far starts, gain +-3 dB, noise in half the sequences."""
         return cls(episodes=_near_and_far("train", "heard"), scenes=scenes, source_nodes=source_nodes,
                    batch_size=batch_size, steps=steps, gain_db=3.0, noise_levels=MIC_NOISE_LEVELS,
-                   noise_fraction=0.5, seed=seed)
+                   noise_fraction=0.5, eq_db=eq_db, seed=seed)
 
     @classmethod
     def validation(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 8,
@@ -176,6 +182,34 @@ class SeparatorBatch(NamedTuple):
                 self.monaural.repeat_interleave(t, dim=0), self.class_index.repeat_interleave(t))
 
 
+# Spectral colouring: a sum of EQ_COMPONENTS cosines over log frequency from EQ_LOW_HZ to Nyquist, so a
+# curve has at most a few broad peaks and dips (an envelope, not comb filtering).
+EQ_COMPONENTS = 3
+EQ_LOW_HZ = 60.0
+
+
+def colouring_gains(coefficients: np.ndarray, phases: np.ndarray, n_samples: int, sample_rate: int) -> np.ndarray:
+    """Linear gains per rfft bin of ``n_samples``-long signals, one curve per row of ``coefficients``
+    (dB amplitudes, (N, EQ_COMPONENTS)) and ``phases`` (radians, same shape): gain_dB(u) = sum_k
+    c_k cos(pi k u + phase_k), u the bin's log frequency mapped to [0, 1] from EQ_LOW_HZ to Nyquist
+    (bins below EQ_LOW_HZ take u = 0). |gain_dB| <= sum_k |c_k|."""
+    freqs = np.fft.rfftfreq(n_samples, 1.0 / sample_rate)
+    nyquist = sample_rate / 2.0
+    u = np.log(np.clip(freqs, EQ_LOW_HZ, nyquist) / EQ_LOW_HZ) / np.log(nyquist / EQ_LOW_HZ)
+    k = np.arange(1, coefficients.shape[1] + 1)
+    curves_db = np.einsum("nk,nkf->nf", coefficients,
+                          np.cos(np.pi * k[None, :, None] * u[None, None, :] + phases[:, :, None]))
+    return (10.0 ** (curves_db / 20.0)).astype(np.float32)
+
+
+def _colour(waveform: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """``waveform`` (B, ..., samples) filtered by its row's gains (B, bins), in the frequency domain
+    over the whole clip (the curves are smooth, so the filter is short and circular wrap negligible)."""
+    shape = (len(gains),) + (1,) * (waveform.ndim - 2) + (gains.shape[1],)
+    spectrum = np.fft.rfft(waveform, axis=-1) * gains.reshape(shape)
+    return np.fft.irfft(spectrum, n=waveform.shape[-1], axis=-1).astype(np.float32)
+
+
 def policy_actions(rng: np.random.Generator, n: int) -> np.ndarray:
     return rng.choice(POLICY_ACTIONS, size=n, p=POLICY_PROBS)
 
@@ -201,6 +235,7 @@ class _Plan:
     gains: np.ndarray  # (B, 2) linear: target, distractors
     noise: np.ndarray  # (B,) level, 0 = none
     noise_seeds: np.ndarray  # (B,)
+    colouring: np.ndarray | None  # (B, 2, 2, EQ_COMPONENTS): target / distractors, dB amplitudes / phases
 
 
 class BatchSource:
@@ -229,7 +264,14 @@ class BatchSource:
         gains = 10.0 ** (rng.uniform(-cfg.gain_db, cfg.gain_db, (cfg.batch_size, 2)) / 20.0)
         noisy = rng.random(cfg.batch_size) < cfg.noise_fraction
         levels = np.asarray(cfg.noise_levels or (0.0,))[rng.integers(max(len(cfg.noise_levels), 1), size=cfg.batch_size)]
-        return _Plan(episodes, actions, gains, np.where(noisy, levels, 0.0), rng.integers(2**31, size=cfg.batch_size))
+        noise_seeds = rng.integers(2**31, size=cfg.batch_size)
+        colouring = None
+        if cfg.eq_db > 0:  # drawn last, so streams without it keep their batches
+            amplitudes = rng.uniform(-1.0, 1.0, (cfg.batch_size, 2, EQ_COMPONENTS))
+            amplitudes *= cfg.eq_db / EQ_COMPONENTS
+            phases = rng.uniform(0.0, 2.0 * np.pi, (cfg.batch_size, 2, EQ_COMPONENTS))
+            colouring = np.stack([amplitudes, phases], axis=2)
+        return _Plan(episodes, actions, gains, np.where(noisy, levels, 0.0), noise_seeds, colouring)
 
     def batch(self, index: int) -> SeparatorBatch:
         cfg, plan = self.config, self.plan(index)
@@ -242,13 +284,21 @@ class BatchSource:
         n_sources = np.array([len(e.source_nodes) for e in plan.episodes], np.float32)[:, None, None]
         target_gain, other_gain = (plan.gains[:, i, None, None].astype(np.float32) for i in range(2))
         noise_rngs = [np.random.default_rng(int(s)) for s in plan.noise_seeds]
+        target_eq = other_eq = None
+        if plan.colouring is not None:
+            target_eq, other_eq = (colouring_gains(plan.colouring[:, i, 0], plan.colouring[:, i, 1],
+                                                   stft_config.clip_samples, stft_config.sample_rate)
+                                   for i in range(2))
         mixtures, shares, powers = [], [], []
         obs, info = self._env.reset(episodes=plan.episodes)
         for step in range(cfg.steps):
             if step:
                 obs, _, _, _, info = self._env.step(plan.actions[:, step - 1])
             share = info["target_binaural"] / n_sources
-            mixture = target_gain * share + other_gain * (obs["audio"] - share)
+            other = obs["audio"] - share
+            if target_eq is not None:
+                share, other = _colour(share, target_eq), _colour(other, other_eq)
+            mixture = target_gain * share + other_gain * other
             rms = np.sqrt(np.mean(np.square(mixture), axis=(1, 2)))
             for row in np.flatnonzero(plan.noise):
                 noise = noise_rngs[row].standard_normal(mixture.shape[1:], dtype=np.float32)
@@ -256,7 +306,8 @@ class BatchSource:
             powers.append(np.mean(np.square(mixture), axis=(1, 2)))
             mixtures.append(np.abs(stft(mixture, config=stft_config)))
             shares.append(np.abs(stft(target_gain * share, config=stft_config)))
-        monaural = np.abs(stft(target_gain[:, 0] * info["target_monaural"], config=stft_config))[:, None]
+        dry = info["target_monaural"] if target_eq is None else _colour(info["target_monaural"], target_eq)
+        monaural = np.abs(stft(target_gain[:, 0] * dry, config=stft_config))[:, None]
 
         def sliced(array: np.ndarray) -> torch.Tensor:
             return torch.from_numpy(np.ascontiguousarray(to_slices(array, n_slices=stft_config.n_freq_slices)))

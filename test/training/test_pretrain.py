@@ -210,3 +210,9 @@ def test_the_command_line_selects_the_backbone():
     assert dense.model == SeparatorConfig(backbone="mmdensenet") and dense.epochs == 3
     with pytest.raises(SystemExit):
         parser.parse_args(["--backbone", "transformer"])
+
+
+def test_the_command_line_colours_the_training_streams_only():
+    coloured = config_from_args(build_parser().parse_args(["--eq-db", "6"]))
+    assert coloured.train_data.eq_db == coloured.refiner_data.eq_db == 6.0 and coloured.val_data.eq_db == 0.0
+    assert config_from_args(build_parser().parse_args([])).train_data.eq_db == 0.0

@@ -7,15 +7,17 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from m2h_ros.core.audio.stft import stft, to_slices
+from m2h_ros.core.audio.stft import from_slices, stft, to_slices
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
 from m2h_ros.core.world.env import BatchEnv
 from m2h_ros.errors import ConfigError
 from m2h_ros.training.separator_data import (
+    EQ_COMPONENTS,
     BatchSource,
     SeparatorStream,
     StreamConfig,
     build_banks,
+    colouring_gains,
     fixed_set,
     policy_actions,
     source_subset,
@@ -88,6 +90,38 @@ def test_gains_scale_the_target_and_its_share(small_sequences, plain, folder_lib
     assert not torch.allclose(gained.mixture, base.mixture)
 
 
+def test_colouring_curves_follow_their_cosines():
+    flat = colouring_gains(np.zeros((1, EQ_COMPONENTS)), np.zeros((1, EQ_COMPONENTS)), 16000, 16000)
+    np.testing.assert_array_equal(flat, 1.0)
+    # One component of 6 dB: +6 dB at the bottom of the band, -6 dB at Nyquist, 0 dB in the log middle.
+    curve = colouring_gains(np.array([[6.0, 0.0, 0.0]]), np.zeros((1, EQ_COMPONENTS)), 16000, 16000)[0]
+    db = 20 * np.log10(curve)
+    middle = int(round(np.sqrt(60.0 * 8000.0)))  # 1 Hz bins
+    assert db[0] == pytest.approx(6.0, abs=1e-4) and db[-1] == pytest.approx(-6.0, abs=1e-4)
+    assert db[middle] == pytest.approx(0.0, abs=0.01) and np.all(np.diff(db[60:]) <= 1e-6)
+
+
+def test_colouring_shapes_the_target_and_its_share_alike(plain, folder_library):
+    coloured_config = dataclasses.replace(plain, eq_db=6.0)
+    source = BatchSource(coloured_config, folder_library)
+    coloured, base, plan = source.batch(1), BatchSource(plain, folder_library).batch(1), source.plan(1)
+    # Everything but the colouring is drawn as before.
+    assert plan.episodes == BatchSource(plain, folder_library).plan(1).episodes
+    stft_config = plain.env.stft
+    n, rate, n_slices = stft_config.clip_samples, stft_config.sample_rate, stft_config.n_freq_slices
+    expected_db = 20 * np.log10(colouring_gains(plan.colouring[:, 0, 0], plan.colouring[:, 0, 1], n, rate))
+    monaural = [from_slices(batch.monaural, n_slices=n_slices)[:, 0].sum(-1).numpy() for batch in (coloured, base)]
+    share = [from_slices(batch.share, n_slices=n_slices).sum((1, 2, -1)).numpy() for batch in (coloured, base)]
+    bins = np.fft.rfftfreq(stft_config.n_fft, 1 / rate)[:monaural[0].shape[1]]
+    for row in range(plain.batch_size):
+        want = np.interp(bins, np.fft.rfftfreq(n, 1 / rate), expected_db[row])
+        for pair in (monaural, share):
+            energetic = pair[1][row] > 0.05 * pair[1][row].max()  # bins where the ratio is not noise
+            got = 20 * np.log10(pair[0][row][energetic] / pair[1][row][energetic])
+            assert np.median(np.abs(got - want[energetic])) < 0.5 and np.ptp(want) > 1.0
+    assert not torch.allclose(coloured.mixture, base.mixture)
+
+
 def test_noise_has_the_drawn_level(plain, folder_library):
     noisy_config = dataclasses.replace(plain, noise_levels=(0.3,), noise_fraction=1.0)
     noisy, clean = BatchSource(noisy_config, folder_library).batch(0), BatchSource(plain, folder_library).batch(0)
@@ -157,6 +191,8 @@ def test_config_validation(small_stream):
         dataclasses.replace(small_stream, source_nodes=0)
     with pytest.raises(ConfigError, match="gain_db"):
         dataclasses.replace(small_stream, gain_db=-1.0)
+    with pytest.raises(ConfigError, match="eq_db"):
+        dataclasses.replace(small_stream, eq_db=float("nan"))
     with pytest.raises(ConfigError, match="mic_noise"):
         dataclasses.replace(small_stream, env=dataclasses.replace(small_stream.env, mic_noise=0.1))
     with pytest.raises(ConfigError, match="n_distractors"):
