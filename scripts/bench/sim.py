@@ -2,11 +2,13 @@
 
     python scripts/bench/sim.py [--steps 200] [--threads 2] [--episodes 1000] [--build-workers 2]
                                 [--repeats 3] [--rir-length 0.5] [--rir-spectra-mib 0] [--fresh-build]
+                                [--stored-rir-spectra]
 
 Uses the test split's default scenes and the default acoustics; builds (or reuses) their RIR banks
 under data_dir() first and reports their size per scene (and the build time of what was missing);
 --fresh-build also times a full build of every scene into a temporary cache with
-scripts/bench/acoustics.py. Sound library: the full default
+scripts/bench/acoustics.py; --stored-rir-spectra runs every case with ``BatchEnv(stored_rir_spectra=True)``
+(building the spectrum files first and reporting their size). Sound library: the full default
 one if it is built, else the --small one (built if missing); the output says which. Each throughput
 case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, its
 minor page faults per env step and the load average before it (other jobs on the cores slow every
@@ -34,12 +36,13 @@ import numpy as np
 from scipy import fft as sfft
 
 from m2h_ros.core.audio.metrics import si_sdr
-from m2h_ros.core.audio.stft import rebuild_ground_truth_phase, stft
+from m2h_ros.core.audio.stft import DEFAULT_STFT, rebuild_ground_truth_phase, stft
 from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
 from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.rir_spectra import StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import load_split
 from m2h_ros.errors import CacheError
 
@@ -58,7 +61,8 @@ def open_library() -> tuple[SoundLibrary, str]:
                 "--small library, built now (the full one is not built)")
 
 
-def build_banks(acoustics: AcousticsConfig, workers: int) -> None:
+def build_banks(acoustics: AcousticsConfig, workers: int, *, stored_spectra_fft: int | None) -> None:
+    """Build (or reuse) the split's RIR banks, and with ``stored_spectra_fft`` their stored spectra."""
     print(f"RIR banks, {SPLIT} split, default scenes, {acoustics.rir_length} s RIRs, "
           f"{acoustics.storage_dtype}:")
     for scene in load_split(SPLIT):
@@ -71,6 +75,13 @@ def build_banks(acoustics: AcousticsConfig, workers: int) -> None:
                  f"{workers} workers)") if todo else "already cached"
         print(f"  {scene.scene_id}: {scene.grid.n_nodes} nodes, {bank.size_on_disk() / 2**20:.1f} MiB "
               f"on disk, {built}")
+        if stored_spectra_fft is not None:
+            spectra = StoredRirSpectra(bank, stored_spectra_fft)
+            todo = sum(not spectra.path(n).exists() for n in range(bank.n_nodes))
+            start = time.perf_counter()
+            spectra.build()
+            built = f"built {todo} sources in {time.perf_counter() - start:.1f} s" if todo else "already stored"
+            print(f"    stored RIR spectra: {spectra.size_on_disk() / 2**30:.2f} GiB on disk, {built}")
 
 
 def fresh_builds(workers: int) -> None:
@@ -90,12 +101,13 @@ def fresh_builds(workers: int) -> None:
 
 
 def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: int, spectra_mib: float,
-               acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
+               stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
     """Runs in a fresh process: steps/s of one BatchEnv with warm caches, and the peak RSS."""
     library, _ = open_library()
     episodes = episodes_for(episode_config, library)
     env = BatchEnv(episodes, library, n_envs=n_envs, threads=threads, pose_cache=pose_cache,
-                   rir_spectra_mib=spectra_mib, config=EnvConfig(camera=camera, acoustics=acoustics))
+                   rir_spectra_mib=spectra_mib, stored_rir_spectra=stored_spectra,
+                   config=EnvConfig(camera=camera, acoustics=acoustics))
     env.prepare(progress=False)
     env.reset()
     actions = np.random.default_rng(0).integers(4, size=(steps + 20, n_envs))
@@ -122,12 +134,13 @@ def _best_cpu_ms(work, repeats: int = 5) -> float:
     return 1e3 * best
 
 
-def fresh_render(acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
+def fresh_render(stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
     """Runs in a fresh process: CPU per env step when every step renders afresh, and the bare FFT
-    work of one such step, both per env step of 16 envs (camera on, 1 thread)."""
+    work of one such step, both per env step of 16 envs (camera on, 1 thread; with stored RIR
+    spectra, no RIR rfft)."""
     library, _ = open_library()
     env = BatchEnv(episodes_for(episode_config, library), library, n_envs=16, pose_cache=0,
-                   config=EnvConfig(camera=True, acoustics=acoustics))
+                   stored_rir_spectra=stored_spectra, config=EnvConfig(camera=True, acoustics=acoustics))
     env.prepare(progress=False)
     env.reset()
     actions = iter(np.random.default_rng(0).integers(1, 4, size=(200, env.n_envs)))   # no Stop
@@ -141,13 +154,15 @@ def fresh_render(acoustics: AcousticsConfig, episode_config: EpisodeConfig, queu
     # The same transforms on arrays of the same shapes, batched over the 16 envs: every source's
     # (2, T) RIR forward at the convolution length, target + mixture (4 rows) back, the STFT frames.
     stft_config, rng = env.config.stft, np.random.default_rng(0)
-    n_fft = sfft.next_fast_len(env.n_samples + acoustics.n_taps - 1, real=True)
+    n_fft = convolution_length(clip_samples=env.n_samples, n_taps=acoustics.n_taps)
     rirs = rng.standard_normal((env.n_envs, env.max_sources * 2, n_fft)).astype(np.float32)
     renders = sfft.rfft(rng.standard_normal((env.n_envs, 4, n_fft)).astype(np.float32), axis=-1)
     frames = rng.standard_normal((env.n_envs, 2 * stft_config.n_frames, stft_config.n_fft)).astype(np.float32)
     parts = {"RIR rfft": lambda: sfft.rfft(rirs, axis=-1),
              "inverse": lambda: sfft.irfft(renders, n_fft, axis=-1),
              "STFT": lambda: sfft.rfft(frames, axis=-1)}
+    if stored_spectra:
+        del parts["RIR rfft"]
     fft = {name: _best_cpu_ms(work) / env.n_envs for name, work in parts.items()}
     env.close()
     queue.put((fresh, fft, n_fft))
@@ -201,7 +216,8 @@ def in_process(target, *target_args):
 def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_config: EpisodeConfig) -> None:
     print(f"throughput ({args.steps} timed batch steps after 20 warm ones, uniformly random actions, "
           f"threads={args.threads}, pose cache {args.pose_cache}/slot, RIR spectrum cache "
-          f"{args.rir_spectra_mib:g} MiB, RIR banks and views warm, {acoustics.rir_length} s RIRs):")
+          f"{args.rir_spectra_mib:g} MiB, stored RIR spectra {'on' if args.stored_rir_spectra else 'off'}, "
+          f"RIR banks and views warm, {acoustics.rir_length} s RIRs):")
     rates = {}
     for camera in (False, True):
         for n_envs in (1, 16):
@@ -210,7 +226,8 @@ def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_co
                 # Other jobs on the cores change these figures by tens of percent: say how busy it was.
                 load = os.getloadavg()[0]
                 runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads, args.pose_cache,
-                                         args.rir_spectra_mib, acoustics, episode_config), load))
+                                         args.rir_spectra_mib, args.stored_rir_spectra, acoustics,
+                                         episode_config), load))
             rate, cpu_ms, rss, hit_rate, spectra_rate, faults, load = zip(*runs)
             rates[n_envs, camera] = np.median(rate)
             print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: "
@@ -237,6 +254,8 @@ def main() -> None:
                         help="RIR length in s (default: the acoustics' default); other lengths build their banks")
     parser.add_argument("--rir-spectra-mib", type=float, default=0.0,
                         help="BatchEnv RIR spectrum cache (MiB, 0: off) in the throughput cases")
+    parser.add_argument("--stored-rir-spectra", action="store_true",
+                        help="BatchEnv(stored_rir_spectra=True): RIR spectra from files (~1 GiB per 32-node scene)")
     parser.add_argument("--only-fresh", action="store_true",
                         help="only the fresh-render figure (also runs against older BatchEnv versions)")
     parser.add_argument("--skip-sanity", action="store_true")
@@ -244,7 +263,8 @@ def main() -> None:
     acoustics = AcousticsConfig() if args.rir_length is None else AcousticsConfig(rir_length=args.rir_length)
     library, which = open_library()
     print(f"sound library: {which}, {sum(len(library.infos(s)) for s in ('heard', 'unheard'))} clips")
-    build_banks(acoustics, args.build_workers)
+    n_fft = convolution_length(clip_samples=DEFAULT_STFT.clip_samples, n_taps=acoustics.n_taps)
+    build_banks(acoustics, args.build_workers, stored_spectra_fft=n_fft if args.stored_rir_spectra else None)
     if args.fresh_build:
         fresh_builds(args.build_workers)
     episode_config = EpisodeConfig(task="near_target", scene_split=SPLIT, sound_split="unheard",
@@ -253,8 +273,9 @@ def main() -> None:
     if not args.only_fresh:
         throughputs(args, acoustics, episode_config)
     load = os.getloadavg()[0]
-    fresh, fft, n_fft = in_process(fresh_render, acoustics, episode_config)
-    print(f"fresh render (16 envs rendering every step, camera on, 1 thread, best of 5 blocks, load "
+    fresh, fft, n_fft = in_process(fresh_render, args.stored_rir_spectra, acoustics, episode_config)
+    print(f"fresh render (16 envs rendering every step, camera on, 1 thread, stored RIR spectra "
+          f"{'on' if args.stored_rir_spectra else 'off'}, best of 5 blocks, load "
           f"average {load:.1f}): {fresh:.2f} ms CPU per env step; its bare FFT work "
           f"{sum(fft.values()):.2f} ms (" + ", ".join(f"{k} {v:.2f}" for k, v in fft.items())
           + f"; convolution length {n_fft}), so {fresh - sum(fft.values()):.2f} ms is not FFT")

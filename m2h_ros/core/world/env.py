@@ -52,7 +52,7 @@ from m2h_ros.core.world.camera import CameraConfig, CameraViews
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.rir_spectra import RirSpectra, StoredRirSpectra
+from m2h_ros.core.world.rir_spectra import RirSpectra, StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import Scene
 from m2h_ros.errors import ConfigError, EpisodeError, M2HError
 
@@ -224,8 +224,7 @@ class BatchEnv:
         self.max_sources = max(len(e.source_nodes) for e in self.episodes)
         self.max_nodes = max(scene_at(*k).grid.n_nodes for k in {_scene_key(e) for e in self.episodes})
         self.max_episode_steps = max(e.max_steps for e in self.episodes)
-        # One linear convolution of a clip with a full RIR, without wrap-around into the kept samples.
-        self._n_fft = sfft.next_fast_len(self.n_samples + config.acoustics.n_taps - 1, real=True)
+        self._n_fft = convolution_length(clip_samples=self.n_samples, n_taps=config.acoustics.n_taps)
         self._rir_spectra = RirSpectra(self._n_fft, config.acoustics.n_taps,
                                        max_bytes=int(rir_spectra_mib * 2**20))
         self._scenes: dict[tuple[str, str, int], _SceneData] = {}

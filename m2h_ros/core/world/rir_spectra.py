@@ -24,6 +24,12 @@ from m2h_ros.core.world.rir_bank import RirBank, load_mapped, save_atomic
 from m2h_ros.errors import ConfigError
 
 
+def convolution_length(*, clip_samples: int, n_taps: int) -> int:
+    """FFT length of one linear convolution of a clip with a full RIR, without wrap-around into
+    the clip's samples: the length of every RIR spectrum the environment uses."""
+    return sfft.next_fast_len(clip_samples + n_taps - 1, real=True)
+
+
 class RirSpectra:
     """(2, F) complex64 RIR spectra per (RIR bank, source, receiver, heading); thread-safe LRU.
 
@@ -129,6 +135,10 @@ class StoredRirSpectra:
 
     def spectrum(self, source: int, receiver: int, heading: int) -> np.ndarray:
         """(2, F) read-only spectrum of the RIR from ``source`` to (``receiver``, ``heading``)."""
+        n = self.bank.n_nodes
+        if not (0 <= source < n and 0 <= receiver < n and 0 <= heading < N_HEADINGS):
+            raise ConfigError(f"source/receiver node must be in [0, {n}) and heading in [0, {N_HEADINGS}), "
+                              f"got {source}, {receiver}, {heading}")
         rows = self._maps[source]
         if rows is None:
             rows = self._source(source)
@@ -143,8 +153,6 @@ class StoredRirSpectra:
         return sum(p.stat().st_size for p in self.directory.glob("src_*.npy"))
 
     def _source(self, source: int) -> np.ndarray:
-        if not 0 <= source < self.bank.n_nodes:
-            raise ConfigError(f"source index out of range 0..{self.bank.n_nodes - 1}: {source}")
         path = self.path(source)
         if not path.exists():
             save_atomic(path, self._compute(source))

@@ -231,6 +231,31 @@ def test_rir_spectrum_cache_changes_no_number(near_episodes, small_library, rir_
         BatchEnv(near_episodes, small_library, n_envs=1, rir_spectra_mib=-1.0)
 
 
+def test_stored_rir_spectra_change_no_number(far_episodes, small_library, rir_cache, config):
+    # Far-target slots (partial resets), microphone noise, 2 threads: the spectra read from the
+    # stored files against those transformed at every fresh render.
+    config = dataclasses.replace(config, mic_noise=0.05)
+    kwargs = dict(n_envs=4, config=config, rir_cache_dir=rir_cache, threads=2)
+    plain = BatchEnv(far_episodes, small_library, **kwargs)
+    stored = BatchEnv(far_episodes, small_library, stored_rir_spectra=True, **kwargs)
+    stored.prepare(progress=False)
+    (obs_a, info_a), (obs_b, info_b) = plain.reset(), stored.reset()
+    rng = np.random.default_rng(8)
+    for _ in range(40):
+        for key in obs_a:
+            np.testing.assert_array_equal(obs_a[key], obs_b[key], err_msg=key)
+        np.testing.assert_array_equal(info_a["target_binaural"], info_b["target_binaural"])
+        actions = rng.choice([STOP, MOVE_FORWARD, TURN_LEFT, TURN_RIGHT], size=4, p=[0.1, 0.4, 0.25, 0.25])
+        (obs_a, *_, info_a), (obs_b, *_, info_b) = plain.step(actions), stored.step(actions)
+    assert stored.rir_spectra_hit_rate == 0 and stored.pose_cache_hit_rate > 0.2
+    plain.close()
+    stored.close()
+    with pytest.raises(ConfigError, match="stored_rir_spectra"):
+        BatchEnv(far_episodes, small_library, n_envs=1, stored_rir_spectra=True, rir_spectra_mib=8.0)
+    with pytest.raises(ConfigError, match="stored_rir_spectra"):
+        BatchEnv(far_episodes, small_library, n_envs=1, stored_rir_spectra=1)
+
+
 @pytest.mark.parametrize("task", ["near_target", "far_target"])
 def test_threads_and_pose_cache_change_no_number_across_resets(task, near_episodes, far_episodes, small_library,
                                                               rir_cache, config):
