@@ -180,7 +180,7 @@ class BatchEnv:
     time at 256 MiB, where its memory traffic costs more than it saves (docs/simulator.md).
     ``stored_rir_spectra`` (default False) instead reads every RIR spectrum from files stored next
     to the RIR bank (``StoredRirSpectra``: ~1 GiB of disk and page cache per 32-node scene, computed
-    once): a fresh render skips the RIR gather and its FFT, ~1/3 of an env step's CPU.
+    once): a fresh render skips the RIR gather and its FFT, ~25% of an env step's CPU.
     ``prepare()`` fills the RIR banks and view caches. Constructing one sets glibc's malloc to keep
     freed memory for the whole process (``m2h_ros.allocator.keep_freed_blocks``: a few MiB freed and
     taken back every step otherwise cost page faults).

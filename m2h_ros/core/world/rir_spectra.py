@@ -113,12 +113,12 @@ class StoredRirSpectra:
     """Every RIR spectrum of one RIR bank, stored on disk next to it and memory-mapped.
 
     ``spectra_<n_fft>/src_<node>.npy`` holds (receivers, headings, 2, n_fft // 2 + 1) complex64 for
-    one source node: 256 KiB per (receiver, heading) at n_fft 32000, about 1 GiB for a 32-node scene
+    one source node: 250 KiB per (receiver, heading) at n_fft 32000, about 1 GiB for a 32-node scene
     (the RIR bank itself is 175 MiB). Each file is computed from the bank on first use (or all at
     once with ``build()``), written atomically. The values are those ``RirSpectra`` computes (each
     row's rfft does not depend on the batch it is in), so using them changes no number; a fresh
-    render then skips the RIR gather and its FFT, ~40% of its CPU. The page cache holds the files
-    once for every process reading them.
+    render then skips the RIR gather and its FFT (docs/simulator.md). The page cache holds the
+    files once for every process reading them.
     """
 
     def __init__(self, bank: RirBank, n_fft: int) -> None:
