@@ -3,7 +3,8 @@
 Layout: ``data_dir()/rir_banks/v<VERSION>/<scene fingerprint>-<config digest>/src_<node>.npy``,
 one (N, row_length) array per source node (see ``acoustics.AcousticsConfig.row_length``), computed
 lazily on first use or all at once with ``build()``, written atomically (temporary file + rename)
-and memory-mapped on read.
+and memory-mapped on read. The bank's folder may also hold ``spectra_<n_fft>/``, the RIRs' spectra
+(``rir_spectra.StoredRirSpectra``).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ def save_atomic(path: Path, array: np.ndarray) -> Path:
     return path
 
 
-def load_mapped(path: Path, shape: tuple[int, ...], dtype: np.dtype | str, what: str) -> np.ndarray:
+def load_mapped(path: Path, shape: tuple[int, ...], dtype: np.dtype | str, *, what: str) -> np.ndarray:
     """The memory-mapped array of ``path`` as a plain ndarray view (indexing an np.memmap pays for
     its subclass hooks), checked against the expected shape and dtype."""
     try:
@@ -117,7 +118,7 @@ class RirBank:
         if not path.exists():
             _simulate_and_store(self.scene, node, self.config, path)
         rows = self._maps[node] = load_mapped(path, (self.n_nodes, self.config.row_length),
-                                              self.config.storage_dtype, "RIR bank")
+                                              self.config.storage_dtype, what="RIR bank")
         return rows
 
     def rirs(self, source_nodes, receiver_nodes, headings, *, out: np.ndarray | None = None) -> np.ndarray:

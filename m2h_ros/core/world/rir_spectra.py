@@ -156,7 +156,7 @@ class StoredRirSpectra:
         path = self.path(source)
         if not path.exists():
             save_atomic(path, self._compute(source))
-        rows = self._maps[source] = load_mapped(path, self._shape, np.complex64, "RIR spectra")
+        rows = self._maps[source] = load_mapped(path, self._shape, np.complex64, what="RIR spectra")
         return rows
 
     def _compute(self, source: int) -> np.ndarray:
