@@ -11,7 +11,8 @@ scripts/bench/acoustics.py; --stored-rir-spectra runs every case with ``BatchEnv
 (building the spectrum files first and reporting their size). Sound library: the full default
 one if it is built, else the --small one (built if missing); the output says which. Each throughput
 case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, its
-minor page faults per env step and the load average before it (other jobs on the cores slow every
+minor page faults per env step, the MiB it read from disk (files the page cache had dropped) and the
+load average before it (other jobs on the cores slow every
 figure); first, how many cores two processes get at once (``cores_available``). Then the cost of a fresh render:
 CPU per env step of 16 envs that render every step (no pose cache, camera on, 1 thread) beside the
 bare FFT work such a step needs (RIR rffts, inverse FFTs, STFT), timed in the same process, best of 5
@@ -114,14 +115,15 @@ def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: 
     for batch in actions[:20]:
         env.step(batch)
     wall, cpu = time.perf_counter(), time.process_time()
-    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    before = resource.getrusage(resource.RUSAGE_SELF)
     for batch in actions[20:]:
         env.step(batch)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     usage = resource.getrusage(resource.RUSAGE_SELF)
     env.close()
     queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps), usage.ru_maxrss / 1024,
-               env.pose_cache_hit_rate, env.rir_spectra_hit_rate, (usage.ru_minflt - faults) / (n_envs * steps)))
+               env.pose_cache_hit_rate, env.rir_spectra_hit_rate, (usage.ru_minflt - before.ru_minflt) / (n_envs * steps),
+               (usage.ru_inblock - before.ru_inblock) * 512 / 2**20))
 
 
 def _best_cpu_ms(work, repeats: int = 5) -> float:
@@ -253,12 +255,13 @@ def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_co
                 runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads, args.pose_cache,
                                          args.rir_spectra_mib, args.stored_rir_spectra, acoustics,
                                          episode_config), load))
-            rate, cpu_ms, rss, hit_rate, spectra_rate, faults, load = zip(*runs)
+            rate, cpu_ms, rss, hit_rate, spectra_rate, faults, read_mib, load = zip(*runs)
             rates[n_envs, camera] = np.median(rate)
             print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: "
                   f"{' / '.join(f'{r:.0f}' for r in rate)} env steps/s (aggregate; median {np.median(rate):.0f}, "
                   f"spread {min(rate):.0f}-{max(rate):.0f}), {min(cpu_ms):.2f}-{max(cpu_ms):.2f} ms CPU per "
-                  f"env step, {max(faults):.1f} page faults per env step, pose-cache hits {100 * hit_rate[0]:.0f}%, RIR spectrum hits "
+                  f"env step, {max(faults):.1f} page faults per env step, "
+                  f"{' / '.join(f'{x:.0f}' for x in read_mib)} MiB read from disk, pose-cache hits {100 * hit_rate[0]:.0f}%, RIR spectrum hits "
                   f"{100 * spectra_rate[0]:.0f}%, peak RSS {max(rss):.0f} MiB, load average before "
                   f"{' / '.join(f'{x:.1f}' for x in load)}")
     print(f"  16 batched / 1 env, camera on: {rates[16, True] / rates[1, True]:.1f}x (medians)")
