@@ -1,12 +1,14 @@
 """Digest of every number BatchEnv returns over fixed runs on the test scenes, to check that a
 speed change changes no number (bit for bit) against another version of the code.
 
-    python scripts/bench/env_digest.py OUT.json [--compare OTHER.json]
+    python scripts/bench/env_digest.py OUT.json [--compare OTHER.json] [--stored-rir-spectra]
     PYTHONPATH=/path/to/other/checkout python scripts/bench/env_digest.py OTHER.json   # the reference
 
 Five runs (near- and far-target, with and without microphone noise and camera, 1-3 threads, pose
 cache on and off, 4-16 slots, full and partial auto-resets); one SHA-256 per step over every array
 of the observation, reward, flags and info (final observation and info included).
+``--stored-rir-spectra`` runs them with ``BatchEnv(stored_rir_spectra=True)``, to compare against a
+reference made without it (the digests do not record the option).
 """
 
 from __future__ import annotations
@@ -41,11 +43,11 @@ def _update(digest, tree) -> None:
 
 
 def run(library: SoundLibrary, task: str, noise: float, threads: int, pose_cache: int, n_envs: int,
-        steps: int, camera: bool) -> list[str]:
+        steps: int, camera: bool, *, stored_rir_spectra: bool) -> list[str]:
     episodes = episodes_for(EpisodeConfig(task=task, scene_split="test", sound_split="unheard", count=200),
                             library)
     env = BatchEnv(episodes, library, n_envs=n_envs, threads=threads, pose_cache=pose_cache,
-                   config=EnvConfig(camera=camera, mic_noise=noise))
+                   stored_rir_spectra=stored_rir_spectra, config=EnvConfig(camera=camera, mic_noise=noise))
     digests = []
     trees = env.reset()
     rng = np.random.default_rng(11)
@@ -63,10 +65,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path, help="JSON file for the digests")
     parser.add_argument("--compare", type=Path, help="digests of another version: report the first difference")
+    parser.add_argument("--stored-rir-spectra", action="store_true",
+                        help="BatchEnv(stored_rir_spectra=True) (RIR spectra read from files, not transformed)")
     args = parser.parse_args()
     library = SoundLibrary.load()
     print(f"m2h_ros from {Path(m2h_ros.__file__).parent}")
-    digests = {repr(case): run(library, *case) for case in RUNS}
+    digests = {repr(case): run(library, *case, stored_rir_spectra=args.stored_rir_spectra) for case in RUNS}
     args.out.write_text(json.dumps(digests, indent=1))
     if args.compare is None:
         return

@@ -2,15 +2,18 @@
 
     python scripts/bench/sim.py [--steps 200] [--threads 2] [--episodes 1000] [--build-workers 2]
                                 [--repeats 3] [--rir-length 0.5] [--rir-spectra-mib 0] [--fresh-build]
+                                [--stored-rir-spectra]
 
 Uses the test split's default scenes and the default acoustics; builds (or reuses) their RIR banks
 under data_dir() first and reports their size per scene (and the build time of what was missing);
 --fresh-build also times a full build of every scene into a temporary cache with
-scripts/bench/acoustics.py. Sound library: the full default
+scripts/bench/acoustics.py; --stored-rir-spectra runs every case with ``BatchEnv(stored_rir_spectra=True)``
+(building the spectrum files first and reporting their size). Sound library: the full default
 one if it is built, else the --small one (built if missing); the output says which. Each throughput
 case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, its
-minor page faults per env step and the load average before it (other jobs on the cores slow every
-figure). Then the cost of a fresh render:
+minor page faults per env step, the MiB it read from disk (files the page cache had dropped) and the
+load average before it (other jobs on the cores slow every
+figure); first, how many cores two processes get at once (``cores_available``). Then the cost of a fresh render:
 CPU per env step of 16 envs that render every step (no pose cache, camera on, 1 thread) beside the
 bare FFT work such a step needs (RIR rffts, inverse FFTs, STFT), timed in the same process, best of 5
 blocks each. Last, the sanity figure:
@@ -34,12 +37,13 @@ import numpy as np
 from scipy import fft as sfft
 
 from m2h_ros.core.audio.metrics import si_sdr
-from m2h_ros.core.audio.stft import rebuild_ground_truth_phase, stft
+from m2h_ros.core.audio.stft import DEFAULT_STFT, rebuild_ground_truth_phase, stft
 from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
 from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.rir_spectra import StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import load_split
 from m2h_ros.errors import CacheError
 
@@ -58,7 +62,8 @@ def open_library() -> tuple[SoundLibrary, str]:
                 "--small library, built now (the full one is not built)")
 
 
-def build_banks(acoustics: AcousticsConfig, workers: int) -> None:
+def build_banks(acoustics: AcousticsConfig, workers: int, *, stored_spectra_fft: int | None) -> None:
+    """Build (or reuse) the split's RIR banks, and with ``stored_spectra_fft`` their stored spectra."""
     print(f"RIR banks, {SPLIT} split, default scenes, {acoustics.rir_length} s RIRs, "
           f"{acoustics.storage_dtype}:")
     for scene in load_split(SPLIT):
@@ -71,6 +76,13 @@ def build_banks(acoustics: AcousticsConfig, workers: int) -> None:
                  f"{workers} workers)") if todo else "already cached"
         print(f"  {scene.scene_id}: {scene.grid.n_nodes} nodes, {bank.size_on_disk() / 2**20:.1f} MiB "
               f"on disk, {built}")
+        if stored_spectra_fft is not None:
+            spectra = StoredRirSpectra(bank, stored_spectra_fft)
+            todo = sum(not spectra.path(n).exists() for n in range(bank.n_nodes))
+            start = time.perf_counter()
+            spectra.build()
+            built = f"built {todo} sources in {time.perf_counter() - start:.1f} s" if todo else "already stored"
+            print(f"    stored RIR spectra: {spectra.size_on_disk() / 2**30:.2f} GiB on disk, {built}")
 
 
 def fresh_builds(workers: int) -> None:
@@ -90,26 +102,28 @@ def fresh_builds(workers: int) -> None:
 
 
 def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: int, spectra_mib: float,
-               acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
+               stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
     """Runs in a fresh process: steps/s of one BatchEnv with warm caches, and the peak RSS."""
     library, _ = open_library()
     episodes = episodes_for(episode_config, library)
     env = BatchEnv(episodes, library, n_envs=n_envs, threads=threads, pose_cache=pose_cache,
-                   rir_spectra_mib=spectra_mib, config=EnvConfig(camera=camera, acoustics=acoustics))
+                   rir_spectra_mib=spectra_mib, stored_rir_spectra=stored_spectra,
+                   config=EnvConfig(camera=camera, acoustics=acoustics))
     env.prepare(progress=False)
     env.reset()
     actions = np.random.default_rng(0).integers(4, size=(steps + 20, n_envs))
     for batch in actions[:20]:
         env.step(batch)
     wall, cpu = time.perf_counter(), time.process_time()
-    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    before = resource.getrusage(resource.RUSAGE_SELF)
     for batch in actions[20:]:
         env.step(batch)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     usage = resource.getrusage(resource.RUSAGE_SELF)
     env.close()
     queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps), usage.ru_maxrss / 1024,
-               env.pose_cache_hit_rate, env.rir_spectra_hit_rate, (usage.ru_minflt - faults) / (n_envs * steps)))
+               env.pose_cache_hit_rate, env.rir_spectra_hit_rate, (usage.ru_minflt - before.ru_minflt) / (n_envs * steps),
+               (usage.ru_inblock - before.ru_inblock) * 512 / 2**20))
 
 
 def _best_cpu_ms(work, repeats: int = 5) -> float:
@@ -122,12 +136,13 @@ def _best_cpu_ms(work, repeats: int = 5) -> float:
     return 1e3 * best
 
 
-def fresh_render(acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
+def fresh_render(stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
     """Runs in a fresh process: CPU per env step when every step renders afresh, and the bare FFT
-    work of one such step, both per env step of 16 envs (camera on, 1 thread)."""
+    work of one such step, both per env step of 16 envs (camera on, 1 thread; with stored RIR
+    spectra, no RIR rfft)."""
     library, _ = open_library()
     env = BatchEnv(episodes_for(episode_config, library), library, n_envs=16, pose_cache=0,
-                   config=EnvConfig(camera=True, acoustics=acoustics))
+                   stored_rir_spectra=stored_spectra, config=EnvConfig(camera=True, acoustics=acoustics))
     env.prepare(progress=False)
     env.reset()
     actions = iter(np.random.default_rng(0).integers(1, 4, size=(200, env.n_envs)))   # no Stop
@@ -141,13 +156,15 @@ def fresh_render(acoustics: AcousticsConfig, episode_config: EpisodeConfig, queu
     # The same transforms on arrays of the same shapes, batched over the 16 envs: every source's
     # (2, T) RIR forward at the convolution length, target + mixture (4 rows) back, the STFT frames.
     stft_config, rng = env.config.stft, np.random.default_rng(0)
-    n_fft = sfft.next_fast_len(env.n_samples + acoustics.n_taps - 1, real=True)
+    n_fft = convolution_length(clip_samples=env.n_samples, n_taps=acoustics.n_taps)
     rirs = rng.standard_normal((env.n_envs, env.max_sources * 2, n_fft)).astype(np.float32)
     renders = sfft.rfft(rng.standard_normal((env.n_envs, 4, n_fft)).astype(np.float32), axis=-1)
     frames = rng.standard_normal((env.n_envs, 2 * stft_config.n_frames, stft_config.n_fft)).astype(np.float32)
     parts = {"RIR rfft": lambda: sfft.rfft(rirs, axis=-1),
              "inverse": lambda: sfft.irfft(renders, n_fft, axis=-1),
              "STFT": lambda: sfft.rfft(frames, axis=-1)}
+    if stored_spectra:
+        del parts["RIR rfft"]
     fft = {name: _best_cpu_ms(work) / env.n_envs for name, work in parts.items()}
     env.close()
     queue.put((fresh, fft, n_fft))
@@ -181,6 +198,31 @@ def sanity(library: SoundLibrary, episode_config: EpisodeConfig, acoustics: Acou
         print(f"  {name:34s} start pose {start:7.2f} dB   target node {target:7.2f} dB   {verdict}")
 
 
+def _spin(queue) -> None:
+    """A fixed numpy workload (~0.1 s on one core); puts its wall-clock seconds."""
+    start, values = time.perf_counter(), np.ones(1 << 20, np.float32)
+    for _ in range(300):
+        np.sqrt(values, out=values)
+    queue.put(time.perf_counter() - start)
+
+
+def cores_available() -> float:
+    """How many cores two processes of the same numpy work get at once: 2 x (time of one alone) /
+    (time of two together). Other jobs lower it, and with the kernel's autogroup scheduling a job
+    started at nice 19 from another session still takes its fair share."""
+    context = multiprocessing.get_context("fork")
+    times = []
+    for count in (1, 2):
+        queue = context.Queue()
+        workers = [context.Process(target=_spin, args=(queue,)) for _ in range(count)]
+        for worker in workers:
+            worker.start()
+        times.append(max(queue.get() for _ in workers))
+        for worker in workers:
+            worker.join()
+    return 2 * times[0] / times[1]
+
+
 def in_process(target, *target_args):
     """``target(*target_args, queue)`` in a fresh (spawned) process; what it put on the queue."""
     context = multiprocessing.get_context("spawn")
@@ -201,7 +243,8 @@ def in_process(target, *target_args):
 def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_config: EpisodeConfig) -> None:
     print(f"throughput ({args.steps} timed batch steps after 20 warm ones, uniformly random actions, "
           f"threads={args.threads}, pose cache {args.pose_cache}/slot, RIR spectrum cache "
-          f"{args.rir_spectra_mib:g} MiB, RIR banks and views warm, {acoustics.rir_length} s RIRs):")
+          f"{args.rir_spectra_mib:g} MiB, stored RIR spectra {'on' if args.stored_rir_spectra else 'off'}, "
+          f"RIR banks and views warm, {acoustics.rir_length} s RIRs):")
     rates = {}
     for camera in (False, True):
         for n_envs in (1, 16):
@@ -210,13 +253,15 @@ def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_co
                 # Other jobs on the cores change these figures by tens of percent: say how busy it was.
                 load = os.getloadavg()[0]
                 runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads, args.pose_cache,
-                                         args.rir_spectra_mib, acoustics, episode_config), load))
-            rate, cpu_ms, rss, hit_rate, spectra_rate, faults, load = zip(*runs)
+                                         args.rir_spectra_mib, args.stored_rir_spectra, acoustics,
+                                         episode_config), load))
+            rate, cpu_ms, rss, hit_rate, spectra_rate, faults, read_mib, load = zip(*runs)
             rates[n_envs, camera] = np.median(rate)
             print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: "
                   f"{' / '.join(f'{r:.0f}' for r in rate)} env steps/s (aggregate; median {np.median(rate):.0f}, "
                   f"spread {min(rate):.0f}-{max(rate):.0f}), {min(cpu_ms):.2f}-{max(cpu_ms):.2f} ms CPU per "
-                  f"env step, {max(faults):.1f} page faults per env step, pose-cache hits {100 * hit_rate[0]:.0f}%, RIR spectrum hits "
+                  f"env step, {max(faults):.1f} page faults per env step, "
+                  f"{' / '.join(f'{x:.0f}' for x in read_mib)} MiB read from disk, pose-cache hits {100 * hit_rate[0]:.0f}%, RIR spectrum hits "
                   f"{100 * spectra_rate[0]:.0f}%, peak RSS {max(rss):.0f} MiB, load average before "
                   f"{' / '.join(f'{x:.1f}' for x in load)}")
     print(f"  16 batched / 1 env, camera on: {rates[16, True] / rates[1, True]:.1f}x (medians)")
@@ -237,6 +282,8 @@ def main() -> None:
                         help="RIR length in s (default: the acoustics' default); other lengths build their banks")
     parser.add_argument("--rir-spectra-mib", type=float, default=0.0,
                         help="BatchEnv RIR spectrum cache (MiB, 0: off) in the throughput cases")
+    parser.add_argument("--stored-rir-spectra", action="store_true",
+                        help="BatchEnv(stored_rir_spectra=True): RIR spectra from files (~1 GiB per 32-node scene)")
     parser.add_argument("--only-fresh", action="store_true",
                         help="only the fresh-render figure (also runs against older BatchEnv versions)")
     parser.add_argument("--skip-sanity", action="store_true")
@@ -244,17 +291,23 @@ def main() -> None:
     acoustics = AcousticsConfig() if args.rir_length is None else AcousticsConfig(rir_length=args.rir_length)
     library, which = open_library()
     print(f"sound library: {which}, {sum(len(library.infos(s)) for s in ('heard', 'unheard'))} clips")
-    build_banks(acoustics, args.build_workers)
+    n_fft = convolution_length(clip_samples=DEFAULT_STFT.clip_samples, n_taps=acoustics.n_taps)
+    build_banks(acoustics, args.build_workers, stored_spectra_fft=n_fft if args.stored_rir_spectra else None)
     if args.fresh_build:
         fresh_builds(args.build_workers)
     episode_config = EpisodeConfig(task="near_target", scene_split=SPLIT, sound_split="unheard",
                                    count=args.episodes)
     episodes_for(episode_config, library)   # cached once, before the workers read it
+    autogroup = Path("/proc/sys/kernel/sched_autogroup_enabled")
+    print(f"cores available to two processes: {cores_available():.2f} of {os.cpu_count()} (load average "
+          f"{os.getloadavg()[0]:.1f}; autogroup scheduling "
+          f"{'on' if autogroup.exists() and autogroup.read_text().strip() == '1' else 'off'})")
     if not args.only_fresh:
         throughputs(args, acoustics, episode_config)
     load = os.getloadavg()[0]
-    fresh, fft, n_fft = in_process(fresh_render, acoustics, episode_config)
-    print(f"fresh render (16 envs rendering every step, camera on, 1 thread, best of 5 blocks, load "
+    fresh, fft, n_fft = in_process(fresh_render, args.stored_rir_spectra, acoustics, episode_config)
+    print(f"fresh render (16 envs rendering every step, camera on, 1 thread, stored RIR spectra "
+          f"{'on' if args.stored_rir_spectra else 'off'}, best of 5 blocks, load "
           f"average {load:.1f}): {fresh:.2f} ms CPU per env step; its bare FFT work "
           f"{sum(fft.values()):.2f} ms (" + ", ".join(f"{k} {v:.2f}" for k, v in fft.items())
           + f"; convolution length {n_fft}), so {fresh - sum(fft.values()):.2f} ms is not FFT")

@@ -52,7 +52,7 @@ from m2h_ros.core.world.camera import CameraConfig, CameraViews
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.rir_spectra import RirSpectra
+from m2h_ros.core.world.rir_spectra import RirSpectra, StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import Scene
 from m2h_ros.errors import ConfigError, EpisodeError, M2HError
 
@@ -106,6 +106,7 @@ class _SceneData:
     scene: Scene
     bank: RirBank
     views: CameraViews | None
+    spectra: StoredRirSpectra | None   # with BatchEnv(stored_rir_spectra=True)
 
 
 class _PoseCache:
@@ -177,6 +178,9 @@ class BatchEnv:
     (``RirSpectra``; 192 KiB an entry for 0.5 s RIRs). It pays where poses recur across episodes
     (many clips at few poses); random-action episodes over the test scenes hit it only ~15% of the
     time at 256 MiB, where its memory traffic costs more than it saves (docs/simulator.md).
+    ``stored_rir_spectra`` (default False) instead reads every RIR spectrum from files stored next
+    to the RIR bank (``StoredRirSpectra``: ~1 GiB of disk and page cache per 32-node scene, computed
+    once): a fresh render skips the RIR gather and its FFT, ~25% of an env step's CPU.
     ``prepare()`` fills the RIR banks and view caches. Constructing one sets glibc's malloc to keep
     freed memory for the whole process (``m2h_ros.allocator.keep_freed_blocks``: a few MiB freed and
     taken back every step otherwise cost page faults).
@@ -185,7 +189,7 @@ class BatchEnv:
     def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, n_envs: int,
                  config: EnvConfig = EnvConfig(), rir_cache_dir: Path | None = None,
                  autoreset: bool = True, threads: int = 1, pose_cache: int = 32,
-                 rir_spectra_mib: float = 0.0) -> None:
+                 rir_spectra_mib: float = 0.0, stored_rir_spectra: bool = False) -> None:
         if not isinstance(config, EnvConfig):
             raise ConfigError(f"config must be an EnvConfig, got {type(config).__name__}")
         if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
@@ -209,14 +213,18 @@ class BatchEnv:
         if isinstance(rir_spectra_mib, bool) or not isinstance(rir_spectra_mib, (int, float, np.integer)) \
                 or not 0 <= rir_spectra_mib < np.inf:
             raise ConfigError(f"rir_spectra_mib={rir_spectra_mib!r} must be a finite number >= 0")
+        if not isinstance(stored_rir_spectra, bool):
+            raise ConfigError(f"stored_rir_spectra={stored_rir_spectra!r} must be a bool")
+        if stored_rir_spectra and rir_spectra_mib:
+            raise ConfigError("stored_rir_spectra=True already holds every RIR spectrum: leave rir_spectra_mib at 0")
+        self.stored_rir_spectra = stored_rir_spectra
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
         keep_freed_blocks()   # process-wide: glibc keeps freed memory instead of re-faulting it
         self.n_samples = config.stft.clip_samples
         self.max_sources = max(len(e.source_nodes) for e in self.episodes)
         self.max_nodes = max(scene_at(*k).grid.n_nodes for k in {_scene_key(e) for e in self.episodes})
         self.max_episode_steps = max(e.max_steps for e in self.episodes)
-        # One linear convolution of a clip with a full RIR, without wrap-around into the kept samples.
-        self._n_fft = sfft.next_fast_len(self.n_samples + config.acoustics.n_taps - 1, real=True)
+        self._n_fft = convolution_length(clip_samples=self.n_samples, n_taps=config.acoustics.n_taps)
         self._rir_spectra = RirSpectra(self._n_fft, config.acoustics.n_taps,
                                        max_bytes=int(rir_spectra_mib * 2**20))
         self._scenes: dict[tuple[str, str, int], _SceneData] = {}
@@ -355,11 +363,14 @@ class BatchEnv:
         return obs, reward, terminated, truncated, info
 
     def prepare(self, *, workers: int = 1, progress: bool = True) -> None:
-        """Build every RIR bank and render every camera view of the episodes' scenes now (before
-        timing, or before forking workers that would otherwise each fill their own caches)."""
+        """Build every RIR bank (and the stored RIR spectra, if used) and render every camera view of
+        the episodes' scenes now (before timing, or before forking workers that would otherwise each
+        fill their own caches)."""
         for key in sorted({_scene_key(e) for e in self.episodes}):
             data = self._scene_data(key)
             data.bank.build(workers=workers, progress=progress)
+            if data.spectra is not None:
+                data.spectra.build()
             if data.views is not None:
                 data.views.prerender()
 
@@ -406,7 +417,8 @@ class BatchEnv:
             scene = scene_at(*key)
             views = CameraViews(scene, self.config.camera_config) if self.config.camera else None
             bank = RirBank(scene, self.config.acoustics, cache_dir=self.rir_cache_dir, progress=False)
-            data = self._scenes[key] = _SceneData(scene, bank, views)
+            spectra = StoredRirSpectra(bank, self._n_fft) if self.stored_rir_spectra else None
+            data = self._scenes[key] = _SceneData(scene, bank, views, spectra)
         return data
 
     def _start_slots(self, slots: np.ndarray, episodes: Sequence[Episode | int | None]) -> None:
@@ -563,10 +575,13 @@ class BatchEnv:
 
     def _convolve(self, slot: int) -> np.ndarray:
         """(4, S) view: the slot's target alone at its pose (rows 0-1), then the clean mixture (rows 2-3)."""
-        count, bank = int(self._n_sources[slot]), self._slot_scene[slot].bank
+        count, data = int(self._n_sources[slot]), self._slot_scene[slot]
         node, heading = int(self._node[slot]), int(self._heading[slot])
-        found = self._rir_spectra.spectra([(bank, source, node, heading)
-                                           for source in self._sources[slot, :count].tolist()])
+        sources = self._sources[slot, :count].tolist()
+        if data.spectra is not None:
+            found = [data.spectra.spectrum(source, node, heading) for source in sources]
+        else:
+            found = self._rir_spectra.spectra([(data.bank, source, node, heading) for source in sources])
         # Convolution in the frequency domain; by linearity the mixture needs one inverse FFT, and
         # target and mixture go through it together (pocketfft vectorises over >= 4 rows).
         both = np.empty((4, found[0].shape[-1]), np.complex64)

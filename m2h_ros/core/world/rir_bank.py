@@ -3,13 +3,15 @@
 Layout: ``data_dir()/rir_banks/v<VERSION>/<scene fingerprint>-<config digest>/src_<node>.npy``,
 one (N, row_length) array per source node (see ``acoustics.AcousticsConfig.row_length``), computed
 lazily on first use or all at once with ``build()``, written atomically (temporary file + rename)
-and memory-mapped on read.
+and memory-mapped on read. The bank's folder may also hold ``spectra_<n_fft>/``, the RIRs' spectra
+(``rir_spectra.StoredRirSpectra``).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import threading
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -28,15 +30,32 @@ def bank_dir(scene: Any, config: AcousticsConfig, cache_dir: Path | None = None)
     return root / f"v{VERSION}" / f"{scene.fingerprint()}-{config.digest()}"
 
 
-def _simulate_and_store(scene: Any, node: int, config: AcousticsConfig, path: Path) -> Path:
-    rows = simulate_source(scene, node, config)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+def save_atomic(path: Path, array: np.ndarray) -> Path:
+    """``np.save`` through a temporary file and a rename: readers see the old state or the whole file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
     with open(tmp, "wb") as handle:
-        np.save(handle, rows)
+        np.save(handle, array)
         handle.flush()
         os.fsync(handle.fileno())
-    os.replace(tmp, path)  # atomic: readers see the old state or the whole file
+    os.replace(tmp, path)
     return path
+
+
+def load_mapped(path: Path, shape: tuple[int, ...], dtype: np.dtype | str, *, what: str) -> np.ndarray:
+    """The memory-mapped array of ``path`` as a plain ndarray view (indexing an np.memmap pays for
+    its subclass hooks), checked against the expected shape and dtype."""
+    try:
+        array = np.load(path, mmap_mode="r")
+    except (ValueError, OSError, EOFError) as err:
+        raise CacheError(f"{what} file {path} is corrupt ({err}); delete it to rebuild") from err
+    if array.shape != tuple(shape) or array.dtype != np.dtype(dtype):
+        raise CacheError(f"{what} file {path} holds {array.dtype}{array.shape}, expected "
+                         f"{np.dtype(dtype)}{tuple(shape)}; delete it to rebuild")
+    return array.view(np.ndarray)
+
+
+def _simulate_and_store(scene: Any, node: int, config: AcousticsConfig, path: Path) -> Path:
+    return save_atomic(path, simulate_source(scene, node, config))
 
 
 class RirBank:
@@ -98,16 +117,8 @@ class RirBank:
         path = self.path(node)
         if not path.exists():
             _simulate_and_store(self.scene, node, self.config, path)
-        expected = (self.n_nodes, self.config.row_length)
-        try:
-            rows = np.load(path, mmap_mode="r")
-        except (ValueError, OSError, EOFError) as err:
-            raise CacheError(f"RIR bank file {path} is corrupt ({err}); delete it to rebuild") from err
-        if rows.shape != expected or rows.dtype != np.dtype(self.config.storage_dtype):
-            raise CacheError(f"RIR bank file {path} holds {rows.dtype}{rows.shape}, expected "
-                             f"{self.config.storage_dtype}{expected}; delete it to rebuild")
-        # A plain ndarray view of the mapping: indexing an np.memmap pays for its subclass hooks.
-        rows = self._maps[node] = rows.view(np.ndarray)
+        rows = self._maps[node] = load_mapped(path, (self.n_nodes, self.config.row_length),
+                                              self.config.storage_dtype, what="RIR bank")
         return rows
 
     def rirs(self, source_nodes, receiver_nodes, headings, *, out: np.ndarray | None = None) -> np.ndarray:

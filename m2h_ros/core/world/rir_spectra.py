@@ -1,4 +1,4 @@
-"""Spectra of binaural RIRs, LRU-cached in memory and bounded in bytes.
+"""Spectra of binaural RIRs: LRU-cached in memory and bounded in bytes, or all of a scene's stored on disk.
 
 The environment convolves every source's clip with the RIR of (source node, receiver node,
 heading) in the frequency domain. That RIR's spectrum does not depend on the episode, so all slots of
@@ -14,12 +14,20 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 from scipy import fft as sfft
 
-from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.acoustics import N_HEADINGS
+from m2h_ros.core.world.rir_bank import RirBank, load_mapped, save_atomic
 from m2h_ros.errors import ConfigError
+
+
+def convolution_length(*, clip_samples: int, n_taps: int) -> int:
+    """FFT length of one linear convolution of a clip with a full RIR, without wrap-around into
+    the clip's samples: the length of every RIR spectrum the environment uses."""
+    return sfft.next_fast_len(clip_samples + n_taps - 1, real=True)
 
 
 class RirSpectra:
@@ -99,3 +107,62 @@ class RirSpectra:
     def clear(self) -> None:
         with self._lock:
             self._entries.clear()
+
+
+class StoredRirSpectra:
+    """Every RIR spectrum of one RIR bank, stored on disk next to it and memory-mapped.
+
+    ``spectra_<n_fft>/src_<node>.npy`` holds (receivers, headings, 2, n_fft // 2 + 1) complex64 for
+    one source node: 250 KiB per (receiver, heading) at n_fft 32000, about 1 GiB for a 32-node scene
+    (the RIR bank itself is 175 MiB). Each file is computed from the bank on first use (or all at
+    once with ``build()``), written atomically. The values are those ``RirSpectra`` computes (each
+    row's rfft does not depend on the batch it is in), so using them changes no number; a fresh
+    render then skips the RIR gather and its FFT (docs/simulator.md). The page cache holds the
+    files once for every process reading them.
+    """
+
+    def __init__(self, bank: RirBank, n_fft: int) -> None:
+        if bank.config.n_taps > n_fft:
+            raise ConfigError(f"n_fft={n_fft} is shorter than the RIRs ({bank.config.n_taps} taps)")
+        self.bank, self.n_fft = bank, int(n_fft)
+        self.directory = bank.directory / f"spectra_{self.n_fft}"
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._shape = (bank.n_nodes, N_HEADINGS, 2, self.n_fft // 2 + 1)
+        self._maps: list[np.ndarray | None] = [None] * bank.n_nodes
+
+    def path(self, source: int) -> Path:
+        return self.directory / f"src_{source:04d}.npy"
+
+    def spectrum(self, source: int, receiver: int, heading: int) -> np.ndarray:
+        """(2, F) read-only spectrum of the RIR from ``source`` to (``receiver``, ``heading``)."""
+        n = self.bank.n_nodes
+        if not (0 <= source < n and 0 <= receiver < n and 0 <= heading < N_HEADINGS):
+            raise ConfigError(f"source/receiver node must be in [0, {n}) and heading in [0, {N_HEADINGS}), "
+                              f"got {source}, {receiver}, {heading}")
+        rows = self._maps[source]
+        if rows is None:
+            rows = self._source(source)
+        return rows[receiver, heading]
+
+    def build(self) -> None:
+        """Compute every missing source file now and map them all."""
+        for source in range(self.bank.n_nodes):
+            self._source(source)
+
+    def size_on_disk(self) -> int:
+        return sum(p.stat().st_size for p in self.directory.glob("src_*.npy"))
+
+    def _source(self, source: int) -> np.ndarray:
+        path = self.path(source)
+        if not path.exists():
+            save_atomic(path, self._compute(source))
+        rows = self._maps[source] = load_mapped(path, self._shape, np.complex64, what="RIR spectra")
+        return rows
+
+    def _compute(self, source: int) -> np.ndarray:
+        """(receivers, headings, 2, F): the rfft of every zero-padded RIR of ``source``."""
+        n_nodes = self.bank.n_nodes
+        receivers, headings = np.divmod(np.arange(n_nodes * N_HEADINGS), N_HEADINGS)
+        rirs = np.zeros((len(receivers), 2, self.n_fft), np.float32)
+        self.bank.rirs(np.full(len(receivers), source), receivers, headings, out=rirs)
+        return sfft.rfft(rirs, axis=-1).reshape(self._shape)

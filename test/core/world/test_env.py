@@ -12,7 +12,7 @@ from m2h_ros.core.world.acoustics import render_binaural
 from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.core.world.env import BatchEnv, EnvConfig, MoveHearEnv
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, EpisodeConfig, generate_episodes
-from m2h_ros.core.world.rir_bank import RirBank
+from m2h_ros.core.world.rir_bank import RirBank, bank_dir
 from m2h_ros.errors import ConfigError, M2HError
 
 SMALL = dict(scene_preset="small", min_source_distance=3.0)
@@ -209,26 +209,40 @@ def test_batch_equals_single_envs_without_pose_cache(near_episodes, small_librar
     assert revisits >= 3   # the batch env served those from its pose cache
 
 
-def test_rir_spectrum_cache_changes_no_number(near_episodes, small_library, rir_cache, config):
+@pytest.mark.parametrize("spectra", ["cached", "stored"])
+def test_rir_spectra_cached_or_stored_change_no_number(spectra, near_episodes, small_library, rir_cache, config):
     # Every slot of the first env renders every step with its RIRs transformed afresh; the second
-    # serves repeated (source, receiver, heading) triples from the shared cache and poses from its
-    # pose cache. Both with microphone noise, 2 threads and auto-reset into later episodes.
+    # serves poses from its pose cache and RIR spectra from the LRU shared by its slots (repeated
+    # (source, receiver, heading) triples) or from the stored spectrum files. Both with microphone
+    # noise, 2 threads and auto-reset into later episodes.
     config = dataclasses.replace(config, mic_noise=0.05)
     kwargs = dict(n_envs=4, config=config, rir_cache_dir=rir_cache, threads=2)
     plain = BatchEnv(near_episodes, small_library, pose_cache=0, rir_spectra_mib=0, **kwargs)
-    cached = BatchEnv(near_episodes, small_library, rir_spectra_mib=64, **kwargs)
-    (obs_a, info_a), (obs_b, info_b) = plain.reset(), cached.reset()
+    option = dict(rir_spectra_mib=64) if spectra == "cached" else dict(stored_rir_spectra=True)
+    fast = BatchEnv(near_episodes, small_library, **option, **kwargs)
+    (obs_a, info_a), (obs_b, info_b) = plain.reset(), fast.reset()
     rng = np.random.default_rng(5)
     for _ in range(45):
         for key in obs_a:
             np.testing.assert_array_equal(obs_a[key], obs_b[key], err_msg=key)
         np.testing.assert_array_equal(info_a["target_binaural"], info_b["target_binaural"])
         actions = rng.integers(4, size=4)
-        (obs_a, *_, info_a), (obs_b, *_, info_b) = plain.step(actions), cached.step(actions)
-    assert cached.rir_spectra_hit_rate > 0.05 and plain.rir_spectra_hit_rate == 0
-    assert cached.pose_cache_hit_rate > 0.3 and plain.pose_cache_hit_rate == 0
+        (obs_a, *_, info_a), (obs_b, *_, info_b) = plain.step(actions), fast.step(actions)
+    assert (fast.rir_spectra_hit_rate > 0.05) == (spectra == "cached") and plain.rir_spectra_hit_rate == 0
+    if spectra == "stored":   # the files it read are there
+        assert list(bank_dir(fast.scene_of(0), config.acoustics, rir_cache).glob("spectra_*/src_*.npy"))
+    assert fast.pose_cache_hit_rate > 0.3 and plain.pose_cache_hit_rate == 0
+    plain.close()
+    fast.close()
+
+
+def test_rir_spectra_options_are_checked(near_episodes, small_library):
     with pytest.raises(ConfigError, match="rir_spectra_mib"):
         BatchEnv(near_episodes, small_library, n_envs=1, rir_spectra_mib=-1.0)
+    with pytest.raises(ConfigError, match="stored_rir_spectra"):
+        BatchEnv(near_episodes, small_library, n_envs=1, stored_rir_spectra=True, rir_spectra_mib=8.0)
+    with pytest.raises(ConfigError, match="stored_rir_spectra"):
+        BatchEnv(near_episodes, small_library, n_envs=1, stored_rir_spectra=1)
 
 
 @pytest.mark.parametrize("task", ["near_target", "far_target"])

@@ -1,13 +1,14 @@
-"""RirSpectra: the cached spectra are the padded RIRs' rfft, the LRU stays within its byte bound."""
+"""RirSpectra: the cached spectra are the padded RIRs' rfft, the LRU stays within its byte bound;
+StoredRirSpectra: the stored ones are the same arrays, bit for bit."""
 
 import numpy as np
 import pytest
 from scipy import fft as sfft
 
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.rir_spectra import RirSpectra
+from m2h_ros.core.world.rir_spectra import RirSpectra, StoredRirSpectra
 from m2h_ros.core.world.scene import generate_scene
-from m2h_ros.errors import ConfigError
+from m2h_ros.errors import CacheError, ConfigError
 
 
 @pytest.fixture(scope="module")
@@ -58,3 +59,38 @@ def test_rirs_write_into_a_longer_buffer_and_leave_the_rest(bank, fast_acoustics
         bank.rirs([0], [1], [2], out=np.zeros((1, 2, taps), np.float64))
     with pytest.raises(ConfigError, match="heading"):
         bank.rirs([0], [1], [4])
+
+
+def test_stored_spectra_equal_the_computed_ones_bit_for_bit(bank, fast_acoustics):
+    n_fft, n = 6000, bank.n_nodes
+    stored = StoredRirSpectra(bank, n_fft)
+    computed = RirSpectra(n_fft, fast_acoustics.n_taps, max_bytes=0)
+    rng = np.random.default_rng(2)
+    requests = [(int(s), int(r), int(h)) for s, r, h in zip(rng.integers(n, size=12), rng.integers(n, size=12),
+                                                            rng.integers(4, size=12))]
+    requests += [(n - 1, n - 1, 3), (0, 0, 0)]
+    for (source, receiver, heading), spectrum in zip(requests, computed.spectra([(bank, *r) for r in requests])):
+        found = stored.spectrum(source, receiver, heading)
+        np.testing.assert_array_equal(found, spectrum)
+        assert found.dtype == np.complex64 and not found.flags.writeable
+    # A second instance maps the files the first wrote (one per source node) and does not rewrite them.
+    written = {path: path.stat().st_mtime_ns for path in stored.directory.glob("src_*.npy")}
+    again = StoredRirSpectra(bank, n_fft)
+    again.build()
+    assert len(list(again.directory.glob("src_*.npy"))) == n
+    assert all(path.stat().st_mtime_ns == mtime for path, mtime in written.items())
+    assert again.size_on_disk() >= n * n * 4 * 2 * (n_fft // 2 + 1) * 8
+    np.testing.assert_array_equal(again.spectrum(*requests[0]), stored.spectrum(*requests[0]))
+    with pytest.raises(ConfigError, match="source"):
+        stored.spectrum(n, 0, 0)
+    with pytest.raises(ConfigError, match="shorter"):
+        StoredRirSpectra(bank, fast_acoustics.n_taps - 1)
+
+
+def test_a_stored_spectra_file_of_another_shape_is_refused(bank, tmp_path):
+    stored = StoredRirSpectra(bank, 5000)
+    np.save(stored.path(1), np.zeros((2, 2), np.complex64))
+    with pytest.raises(CacheError, match="delete it to rebuild"):
+        stored.spectrum(1, 0, 0)
+    stored.path(1).unlink()
+    assert stored.spectrum(1, 0, 0).shape == (2, 2501)
