@@ -2,7 +2,8 @@
 in-process evaluation (many) both call, so a ROS run and an in-process run compute the same numbers.
 
 Each slot keeps its f^R memory; ``step(..., reset=...)`` starts a slot afresh (a new episode).
-Outputs are numpy arrays in the (F, T) layout, linear magnitudes.
+Outputs are numpy arrays in the (F, T) layout, linear magnitudes, made on first use from the networks'
+sliced tensors (``SeparationStep.sliced``, which the PPO trainer feeds to the policy as they are).
 
 With ``pose_cache`` > 0 and ``keys`` given, a slot keeps f^B's and f^M's outputs per key (a pose)
 until its next reset: an agent that turns back to a heading it has heard hears the same clip again
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -30,13 +31,48 @@ from m2h_ros.models.separator import N_EARS, network_input
 from m2h_ros.models.threads import torch_threads
 
 
-@dataclass(frozen=True)
-class SeparationStep:
-    """One step's separator outputs for B slots (float32)."""
+class SlicedSeparation(NamedTuple):
+    """A step's separator outputs as the networks give them: sliced (B, C, H, W) tensors, channels_last."""
 
-    binaural: np.ndarray  # (B, 2, F, T) f^B: the target as heard, linear magnitude
-    monaural: np.ndarray  # (B, F, T) f^M
-    refined: np.ndarray  # (B, F, T) f^R (the memory carried to the next step)
+    binaural: torch.Tensor  # (B, 2S, H, W) f^B
+    monaural: torch.Tensor  # (B, S, H, W) f^M
+    refined: torch.Tensor  # (B, S, H, W) f^R
+
+
+class SeparationStep:
+    """One step's separator outputs for B slots (float32), numpy arrays in the (F, T) layout:
+    ``binaural`` (B, 2, F, T) f^B (the target as heard, linear magnitude), ``monaural`` (B, F, T) f^M and
+    ``refined`` (B, F, T) f^R (the memory carried to the next step).
+
+    Built from the arrays, or (``SeparatorRunner.step``) from the networks' ``sliced`` tensors, each array
+    then made on first use: the trainer feeds the tensors to the policy and reads only ``refined``."""
+
+    def __init__(self, binaural: np.ndarray | None = None, monaural: np.ndarray | None = None,
+                 refined: np.ndarray | None = None, *, sliced: SlicedSeparation | None = None) -> None:
+        self._arrays = {"binaural": binaural, "monaural": monaural, "refined": refined}
+        if (sliced is None) == any(array is None for array in self._arrays.values()):
+            raise ConfigError("a SeparationStep takes its three arrays or its sliced tensors")
+        self.sliced = sliced
+
+    @property
+    def binaural(self) -> np.ndarray:
+        return self._array("binaural")
+
+    @property
+    def monaural(self) -> np.ndarray:
+        return self._array("monaural")
+
+    @property
+    def refined(self) -> np.ndarray:
+        return self._array("refined")
+
+    def _array(self, name: str) -> np.ndarray:
+        array = self._arrays[name]
+        if array is None:
+            tensor = getattr(self.sliced, name)
+            array = from_slices(tensor.cpu().numpy(), n_slices=self.sliced.monaural.shape[1])
+            self._arrays[name] = array = array if name == "binaural" else array[:, 0]
+        return array
 
     def waveform(self, mixture: np.ndarray, *, config) -> np.ndarray:
         """(B, N) the refined estimate rebuilt with the mixture's phase (what a listener hears)."""
@@ -100,10 +136,7 @@ class SeparatorRunner:
             if self.memory is None:
                 self.memory = torch.zeros((self.n_slots, *refined.shape[1:]), device=self.device)
             self.memory[index] = refined
-        s = config.n_freq_slices
-        return SeparationStep(binaural=from_slices(binaural.cpu().numpy(), n_slices=s),
-                              monaural=from_slices(monaural.cpu().numpy(), n_slices=s)[:, 0],
-                              refined=from_slices(refined.cpu().numpy(), n_slices=s)[:, 0])
+        return SeparationStep(sliced=SlicedSeparation(binaural, monaural, refined))
 
     def _front(self, audio: np.ndarray, classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """f^B and f^M: (separated binaural, monaural estimate), sliced (R, C, H, W)."""
@@ -133,4 +166,10 @@ class SeparatorRunner:
         for cache, key in zip(caches, keys, strict=True):
             cache.move_to_end(key)
         entries = [cache[key] for cache, key in zip(caches, keys, strict=True)]
-        return torch.stack([e[0] for e in entries]), torch.stack([e[1] for e in entries])
+        return _stack_channels_last([e[0] for e in entries]), _stack_channels_last([e[1] for e in entries])
+
+
+def _stack_channels_last(rows: list[torch.Tensor]) -> torch.Tensor:
+    """(C, H, W) rows (channels_last slices) -> (R, C, H, W) channels_last: f^R runs ~30% faster on it than
+    on torch.stack's NCHW, with the same numbers (its fused convolutions compute in channels_last)."""
+    return torch.stack([row.permute(1, 2, 0) for row in rows]).permute(0, 3, 1, 2)
