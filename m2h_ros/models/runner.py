@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Hashable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -28,7 +29,7 @@ from m2h_ros.errors import AudioError, ConfigError
 from m2h_ros.models.checkpoint import LoadedSeparator
 from m2h_ros.models.inference import fuse_for_inference
 from m2h_ros.models.separator import N_EARS, network_input
-from m2h_ros.models.threads import torch_threads
+from m2h_ros.models.threads import available_cpus, torch_threads
 
 
 class SlicedSeparation(NamedTuple):
@@ -97,6 +98,9 @@ class SeparatorRunner:
         self.separator = fuse_for_inference(loaded.separator)
         self.device = next(self.separator.parameters()).device
         self.memory: torch.Tensor | None = None
+        # A second thread for the single-threaded f^B / f^M of cache misses (where there is a second CPU).
+        self._helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="separator") \
+            if self.device.type == "cpu" and available_cpus() > 1 else None
 
     def class_indices(self, target_classes) -> np.ndarray:
         """Target category names (B,) -> the checkpoint's class indices."""
@@ -144,6 +148,24 @@ class SeparatorRunner:
         _, binaural = self.separator.separate_binaural(sliced.to(self.device), classes)
         return binaural, self.separator.predict_monaural(binaural, classes)
 
+    def _single_thread_front(self, audio: np.ndarray, classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``_front`` on one torch thread (batch-invariant results, module docstring): so the rows' two
+        halves can run at once, one here and one on the helper thread (torch releases the GIL)."""
+        with torch_threads(1):
+            if self._helper is None or len(audio) < 2:
+                return self._front(audio, classes)
+            half = len(audio) // 2
+            second = self._helper.submit(self._helper_front, audio[half:], classes[half:])
+            first = self._front(audio[:half], classes[:half])
+            second = second.result()
+        return torch.cat((first[0], second[0])), torch.cat((first[1], second[1]))
+
+    def _helper_front(self, audio: np.ndarray, classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        with torch.inference_mode():  # thread-local, as the thread count
+            if torch.get_num_threads() != 1:
+                torch.set_num_threads(1)
+            return self._front(audio, classes)
+
     def _cached_front(self, audio: np.ndarray, classes: torch.Tensor, reset: np.ndarray, rows: np.ndarray,
                       keys: Sequence[Hashable]) -> tuple[torch.Tensor, torch.Tensor]:
         caches = [self._cache[slot] for slot in rows.tolist()]
@@ -154,8 +176,7 @@ class SeparatorRunner:
         self.cache_hits += len(rows) - len(missed)
         self.cache_misses += len(missed)
         if missed:
-            with torch_threads(1):  # batch-invariant results (module docstring)
-                binaural, monaural = self._front(audio[missed], classes[missed])
+            binaural, monaural = self._single_thread_front(audio[missed], classes[missed])
             for j, i in enumerate(missed):
                 # Copies: a row view would keep its whole batch alive.
                 caches[i][keys[i]] = binaural[j].clone(), monaural[j].clone()
