@@ -402,7 +402,7 @@ class PPOTrainer:
             binaural, monaural, refined = (t.cpu() for t in separation.sliced)
             return sliced_policy_inputs(self.policy_config, binaural=binaural, monaural=monaural, refined=refined,
                                         rgb=obs.get("rgb"), out=out)
-        seen = controller_observation(obs, separation)
+        seen = controller_observation(obs, separation, uses_separator=self.policy_config.inputs == "separation")
         return policy_inputs(self.policy_config, separated_binaural=seen.separated_binaural, monaural=seen.monaural,
                              refined=seen.refined, audio=seen.audio, target_class=obs["target_class"], rgb=seen.rgb,
                              stft_config=self.loaded.stft, out=out)
