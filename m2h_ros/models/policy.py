@@ -170,32 +170,81 @@ def area_downsample(rgb: np.ndarray, size: int) -> torch.Tensor:
 
 def policy_inputs(config: PolicyConfig, *, separated_binaural: np.ndarray, monaural: np.ndarray,
                   refined: np.ndarray, audio: np.ndarray, target_class: np.ndarray, rgb: np.ndarray | None,
-                  stft_config: StftConfig = DEFAULT_STFT) -> PolicyInputs:
+                  stft_config: StftConfig = DEFAULT_STFT, out: PolicyInputs | None = None) -> PolicyInputs:
     """The network inputs of B slots from what a controller observes (numpy, (F, T) layouts as in
     :class:`m2h_ros.agents.base.ControllerObservation`); ``target_class`` (B,) indices of
-    ``TARGET_CATEGORIES``. Training and the controllers both call this, so they feed the same numbers."""
+    ``TARGET_CATEGORIES``. Training and the controllers both call this (or, with the separator's own
+    tensors, :func:`sliced_policy_inputs`), so they feed the same numbers. ``out``: channels_last
+    tensors to write the inputs into (rows of :func:`policy_input_buffers`)."""
     s = config.n_freq_slices
 
-    def log1p(x: np.ndarray) -> torch.Tensor:  # torch's float32 log1p is several times numpy's speed
-        source = torch.from_numpy(np.ascontiguousarray(x, np.float32)).clamp_min(0.0)
-        # Written channels_last, the layout ConvEncoder computes in (a rollout's stack keeps it).
-        return torch.log1p(source, out=torch.empty_like(source, memory_format=torch.channels_last))
+    def sliced(x: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(to_slices(np.asarray(x, np.float32), n_slices=s))
 
     if config.inputs == "separation":
-        audio_in = log1p(to_slices(np.asarray(separated_binaural, np.float32), n_slices=s))
-        mono_in = log1p(to_slices(np.stack((monaural, refined), axis=1), n_slices=s))
-    else:
-        sliced = log1p(to_slices(np.abs(stft(np.asarray(audio, np.float32), config=stft_config)), n_slices=s))
-        plane = torch.from_numpy(class_channel_value(np.asarray(target_class))).reshape(-1, 1, 1, 1)
-        audio_in = torch.cat((sliced, plane.expand(len(sliced), 1, *sliced.shape[-2:])), dim=1).contiguous(
-            memory_format=torch.channels_last)
-        mono_in = None
-    rgb_in = None
-    if config.camera:
-        if rgb is None:
-            raise ConfigError("this policy encodes the camera's RGB, but the observation has none")
-        rgb_in = area_downsample(np.asarray(rgb), config.image_size)
-    return PolicyInputs(rgb_in, audio_in, mono_in)
+        return sliced_policy_inputs(config, binaural=sliced(separated_binaural), monaural=sliced(monaural[:, None]),
+                                    refined=sliced(refined[:, None]), rgb=rgb, out=out)
+    out = out or PolicyInputs(None, None, None)
+    spectrum = torch.from_numpy(to_slices(np.abs(stft(np.asarray(audio, np.float32), config=stft_config)), n_slices=s))
+    audio_in = _log1p_into((spectrum,), _output(out.audio, (len(spectrum), 2 * s + 1, *spectrum.shape[-2:])), extra=1)
+    audio_in[:, 2 * s:] = torch.from_numpy(class_channel_value(np.asarray(target_class))).reshape(-1, 1, 1, 1)
+    return PolicyInputs(_rgb_input(config, rgb, out.rgb), audio_in, None)
+
+
+def sliced_policy_inputs(config: PolicyConfig, *, binaural: torch.Tensor, monaural: torch.Tensor,
+                         refined: torch.Tensor, rgb: np.ndarray | None, out: PolicyInputs | None = None) -> PolicyInputs:
+    """:func:`policy_inputs` of a separation policy from the separator's sliced tensors (f^B (B, 2S, H, W),
+    f^M and f^R (B, S, H, W): ``SeparationStep.sliced``), the same numbers without the (F, T) arrays; in
+    channels_last they go into the channels_last inputs without a transpose."""
+    if config.inputs != "separation":
+        raise ConfigError(f"sliced_policy_inputs feeds separation policies, not {config.inputs!r} ones")
+    out = out or PolicyInputs(None, None, None)
+    audio_in = _log1p_into((binaural,), _output(out.audio, binaural.shape))
+    mono_in = _log1p_into((monaural, refined), _output(out.monaural, (len(monaural), 2 * monaural.shape[1],
+                                                                       *monaural.shape[2:])))
+    return PolicyInputs(_rgb_input(config, rgb, out.rgb), audio_in, mono_in)
+
+
+def _output(out: torch.Tensor | None, shape: tuple[int, ...]) -> torch.Tensor:
+    return torch.empty(shape, memory_format=torch.channels_last) if out is None else out
+
+
+def _log1p_into(parts: tuple[torch.Tensor, ...], out: torch.Tensor, *, extra: int = 0) -> torch.Tensor:
+    """log(1 + max(x, 0)) of the channel concatenation of ``parts`` (N, C_i, H, W), written into the first
+    channels of ``out`` (``extra`` channels after them are left to the caller). Elementwise, so the
+    numbers do not depend on the layouts; torch's float32 log1p is several times numpy's speed."""
+    first = 0
+    for part in parts:
+        torch.clamp_min(part, 0.0, out=out[:, first: first + part.shape[1]])
+        first += part.shape[1]
+    if first + extra != out.shape[1]:
+        raise ConfigError(f"{first} + {extra} input channels for an output of {out.shape[1]}")
+    out[:, :first].log1p_()
+    return out
+
+
+def _rgb_input(config: PolicyConfig, rgb: np.ndarray | None, out: torch.Tensor | None) -> torch.Tensor | None:
+    if not config.camera:
+        return None
+    if rgb is None:
+        raise ConfigError("this policy encodes the camera's RGB, but the observation has none")
+    image = area_downsample(np.asarray(rgb), config.image_size)
+    return image if out is None else out.copy_(image)
+
+
+def policy_input_buffers(config: PolicyConfig, *, steps: int, slots: int) -> PolicyInputs:
+    """Uninitialised (steps, slots, C, H, W) tensors for a rollout's inputs (``policy_inputs(out=buffers.index(t))``),
+    each (steps * slots, C, H, W) channels_last underneath, so ``flat()`` is a view the encoders take as is."""
+    s, (h, w) = config.n_freq_slices, config.slice_shape
+
+    def empty(channels: int, height: int, width: int, dtype: torch.dtype) -> torch.Tensor:
+        flat = torch.empty((steps * slots, channels, height, width), dtype=dtype, memory_format=torch.channels_last)
+        return flat.view(steps, slots, channels, height, width)
+
+    separation = config.inputs == "separation"
+    return PolicyInputs(empty(3, config.image_size, config.image_size, torch.uint8) if config.camera else None,
+                        empty(2 * s if separation else 2 * s + 1, h, w, torch.float32),
+                        empty(2 * s, h, w, torch.float32) if separation else None)
 
 
 def _init_kaiming(module: nn.Module) -> None:

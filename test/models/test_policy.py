@@ -7,8 +7,9 @@ import torch
 
 from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.models.checkpoint import save_separator
+from m2h_ros.core.audio.stft import to_slices
 from m2h_ros.models.policy import (PolicyConfig, PolicyInputs, PolicyNet, area_downsample, load_policy,
-                                   policy_inputs, save_policy)
+                                   policy_input_buffers, policy_inputs, save_policy, sliced_policy_inputs)
 from m2h_ros.models.separator import Separator, SeparatorConfig
 
 SMALL = PolicyConfig(hidden=16, channels=(4, 8, 4), image_size=40)
@@ -176,15 +177,45 @@ def test_shipped_policies_act_as_with_nchw_convolutions(kind):
     assert torch.equal(already.logits, fast.logits)
 
 
-def test_policy_inputs_are_channels_last():
-    """What the rollout stores and the update stacks is already in the encoders' layout (no copy)."""
+def test_policy_inputs_are_channels_last_and_the_same_from_every_path():
+    """What the rollout stores is already in the encoders' layout (no copy): written into the rollout's
+    buffers, whose flat view the update takes as is; the separator's sliced tensors (channels_last, as
+    SeparatorRunner gives them) make the numbers the controllers' (F, T) arrays make, bit for bit."""
     config = PolicyConfig.preset("compact")
     rng = np.random.default_rng(0)
-    inputs = policy_inputs(config, separated_binaural=rng.random((2, 2, 512, 32), np.float32),
-                           monaural=rng.random((2, 512, 32), np.float32), refined=rng.random((2, 512, 32), np.float32),
-                           audio=None, target_class=np.zeros(2, np.int64),
-                           rgb=rng.integers(0, 256, (2, 128, 128, 3), np.uint8))
+    # Magnitudes over many decades, some below 0 (clamped): log1p's every branch.
+    binaural, mono, refined = ((np.exp(rng.uniform(-23, 9, shape)) * rng.choice([1, 1, 1, -1], shape)).astype(np.float32)
+                               for shape in ((3, 2, 512, 32), (3, 512, 32), (3, 512, 32)))
+    rgb = rng.integers(0, 256, (3, 128, 128, 3), np.uint8)
+    arrays = dict(separated_binaural=binaural, monaural=mono, refined=refined, audio=None,
+                  target_class=np.zeros(3, np.int64), rgb=rgb)
+    inputs = policy_inputs(config, **arrays)
     for x in inputs:
         assert x.is_contiguous(memory_format=torch.channels_last)
-    stacked = PolicyInputs(*(torch.stack([x, x]) for x in inputs)).flat()
-    assert all(x.is_contiguous(memory_format=torch.channels_last) for x in stacked)
+    np.testing.assert_allclose(inputs.monaural[2, 16 + 5].numpy(), np.log1p(np.maximum(refined[2, 160:192], 0)),
+                               rtol=1e-6)  # f^R's band 5
+
+    def sliced(x):
+        return torch.from_numpy(to_slices(x, n_slices=16)).contiguous(memory_format=torch.channels_last)
+
+    buffers = policy_input_buffers(config, steps=2, slots=3)
+    for t in range(2):
+        got = sliced_policy_inputs(config, binaural=sliced(binaural), monaural=sliced(mono[:, None]),
+                                   refined=sliced(refined[:, None]), rgb=rgb, out=buffers.index(t))
+        assert all(g.data_ptr() == b[t].data_ptr() for g, b in zip(got, buffers, strict=True))  # written in place
+    into = policy_inputs(config, **arrays, out=policy_input_buffers(config, steps=1, slots=3).index(0))
+    for expected, buffer, written in zip(inputs, buffers, into, strict=True):
+        assert torch.equal(expected, buffer[0]) and torch.equal(expected, buffer[1]) and torch.equal(expected, written)
+    flat = buffers.flat()
+    assert all(x.is_contiguous(memory_format=torch.channels_last) and x.shape[0] == 6 for x in flat)
+    assert all(f.data_ptr() == b.data_ptr() for f, b in zip(flat, buffers, strict=True))  # a view
+
+    mixture = PolicyConfig(inputs="mixture", camera=False)
+    audio = rng.standard_normal((3, 2, 16000)).astype(np.float32)
+    args = {**arrays, "audio": audio, "target_class": np.array([0, 2, 1])}
+    written = policy_inputs(mixture, **args, out=policy_input_buffers(mixture, steps=1, slots=3).index(0))
+    fresh = policy_inputs(mixture, **args)
+    assert torch.equal(written.audio, fresh.audio) and fresh.audio.is_contiguous(memory_format=torch.channels_last)
+    with pytest.raises(ConfigError, match="separation policies"):
+        sliced_policy_inputs(mixture, binaural=sliced(binaural), monaural=sliced(mono[:, None]),
+                             refined=sliced(refined[:, None]), rgb=None)

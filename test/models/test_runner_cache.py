@@ -1,7 +1,8 @@
 """SeparatorRunner's pose cache: reused f^B / f^M outputs give what running them again gives (to float
 tolerance against the uncached runner, bit for bit against a runner that starts with an empty cache,
 as a resumed training run does), with two torch threads, where oneDNN's batched results differ in the
-last bits by batch composition."""
+last bits by batch composition; misses split over the helper thread and the channels_last outputs change no
+number."""
 
 import numpy as np
 import pytest
@@ -9,7 +10,8 @@ import torch
 
 from m2h_ros.errors import ConfigError
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
-from m2h_ros.models.runner import SeparatorRunner
+from m2h_ros.core.audio.stft import from_slices
+from m2h_ros.models.runner import SeparationStep, SeparatorRunner
 
 SLOTS = 5
 TOLERANCE = 2e-5  # relative to the output's peak, as test_separator_inference
@@ -87,3 +89,30 @@ def test_without_keys_or_cache_nothing_is_kept(loaded):
         SeparatorRunner(loaded, 2, pose_cache=-1)
     with pytest.raises(ConfigError, match="keys"):
         SeparatorRunner(loaded, 2, pose_cache=4).step(audio, np.zeros(2, np.int64), np.ones(2, bool), keys=[(0, 0)])
+
+
+def test_two_threaded_misses_and_channels_last_outputs_change_no_number(loaded, two_threads):
+    """Cache misses split over the helper thread give the one-thread front's outputs bit for bit; the
+    outputs are the networks' sliced channels_last tensors, with the (F, T) arrays made from them."""
+    split = SeparatorRunner(loaded, SLOTS, pose_cache=2)
+    single = SeparatorRunner(loaded, SLOTS, pose_cache=2)
+    assert split._helper is not None  # two CPUs: tests run where the trainer does
+    single._helper = None
+    classes = np.array([1, 0, 1, 1, 0])
+    rng = np.random.default_rng(5)
+    for step in range(6):
+        reset = np.ones(SLOTS, bool) if step == 0 else np.zeros(SLOTS, bool)
+        poses = rng.integers(0, 3, SLOTS)
+        audio = np.stack([clip(0, s, int(poses[s])) for s in range(SLOTS)])
+        keys = [(int(p), 0) for p in poses]
+        got = split.step(audio, classes, reset, keys=keys)
+        assert_equal(single.step(audio, classes, reset, keys=keys), got, f"step {step}")
+        for name in ("binaural", "monaural", "refined"):
+            tensor = getattr(got.sliced, name)
+            assert tensor.is_contiguous(memory_format=torch.channels_last), f"{name}, step {step}"
+            array = getattr(got, name)
+            assert np.array_equal(from_slices(tensor.numpy(), n_slices=16).reshape(array.shape), array)
+    assert split.cache_hits > 0 and split.memory.is_contiguous(memory_format=torch.channels_last)
+    zero = np.zeros((1, 512, 32), np.float32)
+    with pytest.raises(ConfigError, match="three arrays or its sliced"):
+        SeparationStep(zero, zero)
