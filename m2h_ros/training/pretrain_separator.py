@@ -117,6 +117,7 @@ class PretrainConfig:
     val_batches: int = 4  # the fixed validation set: this many batches of val_data
     threads: int = 2  # torch intra-op threads of the training process
     workers: int = 1  # DataLoader worker processes rendering batches
+    device: str = "auto"  # where the networks train: auto (CUDA when present), cpu or cuda
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, SeparatorConfig):
@@ -138,12 +139,21 @@ class PretrainConfig:
         if self.train_data.steps != 1:
             raise ConfigError("PretrainConfig.train_data must draw single observations (steps=1)")
         self.model.check_stft(self.train_data.env.stft)
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ConfigError(f"PretrainConfig.device={self.device!r} must be auto, cpu or cuda")
+
+    def torch_device(self) -> torch.device:
+        """The device ``device`` names on this machine (auto: the first CUDA device when present)."""
+        if self.device == "cuda" and not torch.cuda.is_available():
+            raise ConfigError("PretrainConfig.device='cuda' but no CUDA device is available")
+        return torch.device("cuda" if self.device != "cpu" and torch.cuda.is_available() else "cpu")
 
     def result_fields(self) -> dict[str, Any]:
         """The fields a resumed run must share with the run it continues. Not the epoch counts while
         the learning rate is constant: batch i is the same in any run, so continuing with more (or
         fewer) epochs of the current stage is the run that had that many from the start."""
-        free = {"threads", "workers", "refiner_epochs"} | ({"epochs"} if self.final_lr is None else set())
+        # The device changes only the last bits (CUDA kernels): a run may resume on another one.
+        free = {"threads", "workers", "device", "refiner_epochs"} | ({"epochs"} if self.final_lr is None else set())
         return {k: v for k, v in dataclasses.asdict(self).items() if k not in free}
 
     def stage1_lr(self, batch: int) -> float:
@@ -315,15 +325,25 @@ def _print_epoch(stage: str, record: dict[str, float]) -> None:
         f"{k} {v:.4f}" for k, v in record.items() if k != "epoch"))
 
 
+def _on(batch: SeparatorBatch, device: torch.device) -> SeparatorBatch:
+    """The batch's tensors on ``device`` (the batch itself on the CPU)."""
+    if device.type == "cpu":
+        return batch
+    return batch._replace(**{name: getattr(batch, name).to(device, non_blocking=True)
+                             for name in batch._fields if name != "index"})
+
+
 def _batches(config: PretrainConfig, stream: StreamConfig, library: SoundLibrary, start: int, stop: int,
-             rir_cache_dir: Path | None) -> Iterator[SeparatorBatch]:
-    """Batches start..stop-1 of a stream, rendered by the configured worker processes, checked in order."""
+             rir_cache_dir: Path | None, device: torch.device) -> Iterator[SeparatorBatch]:
+    """Batches start..stop-1 of a stream, rendered by the configured worker processes, checked in
+    order, on ``device``."""
     loader = DataLoader(SeparatorStream(BatchSource(stream, library, rir_cache_dir=rir_cache_dir), start, stop),
-                        batch_size=None, num_workers=config.workers, prefetch_factor=4 if config.workers else None)
+                        batch_size=None, num_workers=config.workers, prefetch_factor=4 if config.workers else None,
+                        pin_memory=device.type == "cuda")
     for expected, batch in enumerate(loader, start):
         if batch.index != expected:
             raise RuntimeError(f"data loader gave batch {batch.index}, expected {expected}")
-        yield batch
+        yield _on(batch, device)
 
 
 def _train_stage(stage: str, config: PretrainConfig, state: _State, separator: Separator,
@@ -340,7 +360,7 @@ def _train_stage(stage: str, config: PretrainConfig, state: _State, separator: S
         optimizer.load_state_dict(state.optimizer)
     first = state.epoch + 1
     batches = _batches(config, stream, library, state.epoch * batches_per_epoch, epochs * batches_per_epoch,
-                       rir_cache_dir)
+                       rir_cache_dir, next(separator.parameters()).device)
     for epoch in range(first, epochs + 1):
         started = time.perf_counter()
         for module in modules:
@@ -382,7 +402,8 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
     started = time.perf_counter()
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
-    separator = Separator(config.model)
+    separator = Separator(config.model)  # built (and seeded) on the CPU whatever the device
+    device = config.torch_device()
     state_file = state_path(out)
     state = _load_state(state_file, config) if state_file.exists() and not fresh else _State()
     resumed = {"stage": state.stage, "epoch": state.epoch} if state.model is not None else None
@@ -393,10 +414,11 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
             separator.load_state_dict(weights)
     if state.model is not None:
         separator.load_state_dict(state.model)
+    separator.to(device)
     for stream in (config.train_data, config.refiner_data, config.val_data):
         build_banks(stream, cache_dir=rir_cache_dir, workers=rir_workers, progress=progress)
-    val = fixed_set(BatchSource(config.val_data, library, rir_cache_dir=rir_cache_dir), config.val_batches,
-                    progress=progress)
+    val = [_on(batch, device) for batch in fixed_set(BatchSource(config.val_data, library, rir_cache_dir=rir_cache_dir),
+                                                       config.val_batches, progress=progress)]
     state.seconds["setup"] += time.perf_counter() - started
     out.parent.mkdir(parents=True, exist_ok=True)
     common = dict(library=library, save=lambda: _save_state(state_file, config, state), on_epoch=on_epoch,
@@ -427,7 +449,7 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
                  batches_per_epoch=config.refiner_batches_per_epoch, loss=stage2_loss,
                  validate=lambda: evaluate_refiner(separator, val), select="refined_l1", **common)
     separator.load_state_dict(state.best["stage2"]["state"])
-    separator.eval().requires_grad_(True)
+    separator.cpu().eval().requires_grad_(True)  # checkpoints hold CPU tensors
 
     history = state.history
     best1, best2 = state.best["stage1"]["epoch"], state.best["stage2"]["epoch"]
@@ -453,7 +475,7 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
         "initialised_from": initialised_from,
         "wall_seconds": {**seconds, "total": round(sum(state.seconds.values()), 1)},
         "observations_per_second": {s: round(samples[s] / max(state.seconds[s], 1e-9), 1) for s in STAGES},
-        "machine": _machine(),
+        "machine": {**_machine(), "device": str(device)},
     }
     save_separator(out, separator, classes=list(TARGET_CATEGORIES), stft_config=config.train_data.env.stft,
                    metadata=metadata)
@@ -493,6 +515,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="anneal stage 1's learning rate to this along a cosine (default: constant)")
     parser.add_argument("--threads", type=int, default=defaults.threads, help="torch threads of the trainer")
     parser.add_argument("--workers", type=int, default=defaults.workers, help="data loader processes")
+    parser.add_argument("--device", default=defaults.device, choices=("auto", "cpu", "cuda"),
+                        help="where the networks train (auto: CUDA when present)")
     parser.add_argument("--fresh", action="store_true", help="ignore a saved training state and start afresh")
     return parser
 
@@ -503,7 +527,7 @@ def config_from_args(args: argparse.Namespace) -> PretrainConfig:
     return PretrainConfig(model=model, seed=args.seed, epochs=args.epochs,
                       batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
                       refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
-                      workers=args.workers, final_lr=args.final_lr,
+                      workers=args.workers, device=args.device, final_lr=args.final_lr,
                       init_from=repo_relative(args.init_from) if args.init_from else "",
                       train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
                                                        source_nodes=args.source_nodes, eq_db=args.eq_db),

@@ -65,6 +65,7 @@ def test_checkpoint_rebuilds_with_classes_and_metadata(trained):
     meta = loaded.metadata
     assert meta["mixture_power"] > 0 and meta["command"] == "test" and meta["resumed_from"] is None
     assert meta["validation"] == {"sequences": 6, "steps": 3} and meta["machine"]["cpu_count"] >= 1
+    assert meta["machine"]["device"] == ("cuda" if torch.cuda.is_available() else "cpu")  # device "auto"
     side = json.loads(trained.checkpoint.with_suffix(".json").read_text())
     assert side["final"] == meta["final"]
     assert trained.checkpoint.with_name("sep_loss.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -201,6 +202,13 @@ def test_config_validation(small_stream):
     with pytest.raises(ConfigError, match="single observations"):
         PretrainConfig(train_data=dataclasses.replace(small_stream, steps=2))
     assert isinstance(Separator(PretrainConfig().model), Separator)
+    with pytest.raises(ConfigError, match="device"):
+        PretrainConfig(device="gpu")
+    assert PretrainConfig(device="cpu").torch_device() == torch.device("cpu")
+    assert "device" not in PretrainConfig().result_fields()  # a run may resume on another device
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="no CUDA device"):
+            PretrainConfig(device="cuda").torch_device()
 
 
 def test_the_command_line_selects_the_backbone():
