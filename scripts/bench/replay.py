@@ -140,6 +140,8 @@ def main() -> None:
         print(json.dumps(child(args.child[0], Path(args.child[1]))))
         return
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} CPUs)")
+    from m2h_ros.machine import availability_line  # here: the children time their own imports
+    print(availability_line())
     with tempfile.TemporaryDirectory(prefix="bench_replay_") as tmp:
         bags = {}
         if args.bag:

@@ -57,6 +57,7 @@ from m2h_ros.models.separator import (  # noqa: E402
     separate_clip,
 )
 from m2h_ros.models.threads import inference_threads  # noqa: E402
+from m2h_ros.machine import availability_line  # noqa: E402
 from m2h_ros.models.unet import UNet  # noqa: E402
 
 THREADS = (1, 2)
@@ -195,6 +196,7 @@ def main() -> None:
     args = parser.parse_args()
     print(f"torch {torch.__version__}, {args.repeats} rounds per batch-1 figure, {os.cpu_count()} CPUs, "
           f"load average {load_average()}, OMP_WAIT_POLICY={os.environ['OMP_WAIT_POLICY']}")
+    print(availability_line())
     configs = [SeparatorConfig.preset(name) for name in args.presets] if "unet" in args.backbones else []
     configs += [SeparatorConfig(backbone=name) for name in args.backbones if name != "unet"]
     for config in configs:

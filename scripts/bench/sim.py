@@ -13,7 +13,7 @@ one if it is built, else the --small one (built if missing); the output says whi
 case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, its
 minor page faults per env step, the MiB it read from disk (files the page cache had dropped) and the
 load average before it (other jobs on the cores slow every
-figure); first, how many cores two processes get at once (``cores_available``). Then the cost of a fresh render:
+figure); first, how many cores two processes get at once (``m2h_ros.machine.cores_available``). Then the cost of a fresh render:
 CPU per env step of 16 envs that render every step (no pose cache, camera on, 1 thread) beside the
 bare FFT work such a step needs (RIR rffts, inverse FFTs, STFT), timed in the same process, best of 5
 blocks each. Last, the sanity figure:
@@ -46,6 +46,7 @@ from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.rir_spectra import StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import load_split
 from m2h_ros.errors import CacheError
+from m2h_ros.machine import availability_line
 
 SPLIT = "test"
 
@@ -198,31 +199,6 @@ def sanity(library: SoundLibrary, episode_config: EpisodeConfig, acoustics: Acou
         print(f"  {name:34s} start pose {start:7.2f} dB   target node {target:7.2f} dB   {verdict}")
 
 
-def _spin(queue) -> None:
-    """A fixed numpy workload (~0.1 s on one core); puts its wall-clock seconds."""
-    start, values = time.perf_counter(), np.ones(1 << 20, np.float32)
-    for _ in range(300):
-        np.sqrt(values, out=values)
-    queue.put(time.perf_counter() - start)
-
-
-def cores_available() -> float:
-    """How many cores two processes of the same numpy work get at once: 2 x (time of one alone) /
-    (time of two together). Other jobs lower it, and with the kernel's autogroup scheduling a job
-    started at nice 19 from another session still takes its fair share."""
-    context = multiprocessing.get_context("fork")
-    times = []
-    for count in (1, 2):
-        queue = context.Queue()
-        workers = [context.Process(target=_spin, args=(queue,)) for _ in range(count)]
-        for worker in workers:
-            worker.start()
-        times.append(max(queue.get() for _ in workers))
-        for worker in workers:
-            worker.join()
-    return 2 * times[0] / times[1]
-
-
 def in_process(target, *target_args):
     """``target(*target_args, queue)`` in a fresh (spawned) process; what it put on the queue."""
     context = multiprocessing.get_context("spawn")
@@ -298,10 +274,7 @@ def main() -> None:
     episode_config = EpisodeConfig(task="near_target", scene_split=SPLIT, sound_split="unheard",
                                    count=args.episodes)
     episodes_for(episode_config, library)   # cached once, before the workers read it
-    autogroup = Path("/proc/sys/kernel/sched_autogroup_enabled")
-    print(f"cores available to two processes: {cores_available():.2f} of {os.cpu_count()} (load average "
-          f"{os.getloadavg()[0]:.1f}; autogroup scheduling "
-          f"{'on' if autogroup.exists() and autogroup.read_text().strip() == '1' else 'off'})")
+    print(availability_line())
     if not args.only_fresh:
         throughputs(args, acoustics, episode_config)
     load = os.getloadavg()[0]

@@ -27,6 +27,7 @@ import numpy as np
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
+from m2h_ros.machine import availability_line
 from m2h_ros.training.ppo import KINDS, TIMED_PARTS, PPOConfig, PPOTrainer
 
 
@@ -52,6 +53,7 @@ def main() -> None:
     print(f"PPO {args.kind}, {args.preset} policy, {args.n_envs} slots x {args.n_steps} steps per update, "
           f"camera {'off' if args.no_camera else 'on'}, f^R trained: {config.refiner_trained} "
           f"({args.refiner_epochs} passes), {args.threads} torch threads, {os.cpu_count()} CPUs")
+    print(availability_line())
     for repeat in range(args.repeats):
         before = os.getloadavg()[0]
         with tempfile.TemporaryDirectory() as out:

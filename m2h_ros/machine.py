@@ -1,0 +1,53 @@
+"""What this machine's cores are free for right now, for benchmarks to print beside their figures.
+
+On a shared machine a throughput figure says as much as the cores were free. The load average does
+not tell it all: with the kernel's autogroup scheduling (``/proc/sys/kernel/sched_autogroup_enabled``)
+CPU time is shared between sessions first, so a job started at nice 19 from another session still
+takes its session's fair share of the cores. Measure instead.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+AUTOGROUP = Path("/proc/sys/kernel/sched_autogroup_enabled")
+
+
+def _spin(queue) -> None:
+    """A fixed numpy workload (~0.1 s on one core); puts its wall-clock seconds."""
+    start, values = time.perf_counter(), np.ones(1 << 20, np.float32)
+    for _ in range(300):
+        np.sqrt(values, out=values)
+    queue.put(time.perf_counter() - start)
+
+
+def cores_available() -> float:
+    """How many cores two processes of the same numpy work get at once: 2 x (time of one alone) /
+    (time of two together); 2.0 on two free cores, ~1 when another job holds one of them."""
+    context = multiprocessing.get_context("fork")
+    times = []
+    for count in (1, 2):
+        queue = context.Queue()
+        workers = [context.Process(target=_spin, args=(queue,)) for _ in range(count)]
+        for worker in workers:
+            worker.start()
+        times.append(max(queue.get() for _ in workers))
+        for worker in workers:
+            worker.join()
+    return 2 * times[0] / times[1]
+
+
+def autogroup_scheduling() -> bool:
+    return AUTOGROUP.exists() and AUTOGROUP.read_text().strip() == "1"
+
+
+def availability_line() -> str:
+    """One line for a benchmark's output: cores available to two processes, load average, scheduler."""
+    return (f"cores available to two processes: {cores_available():.2f} of {os.cpu_count()} (load average "
+            f"{os.getloadavg()[0]:.1f}; autogroup scheduling {'on' if autogroup_scheduling() else 'off'}"
+            f"{': start benches with setsid, other sessions share the cores first' if autogroup_scheduling() else ''})")
