@@ -74,6 +74,7 @@ from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
+from m2h_ros.models.device import DEVICES, check_device, training_device
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import (PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_input_buffers,  # noqa: E402
                                    policy_inputs, save_policy, sliced_policy_inputs)
@@ -166,8 +167,7 @@ class PPOConfig:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a number >= 0")
         if self.entropy_coef is not None and not (isinstance(self.entropy_coef, float) and self.entropy_coef >= 0):
             raise ConfigError(f"PPOConfig.entropy_coef={self.entropy_coef!r} must be None or a float >= 0")
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise ConfigError(f"PPOConfig.device={self.device!r} must be auto, cpu or cuda")
+        check_device(self.device, field="PPOConfig.device")
 
     @property
     def spec(self) -> KindSpec:
@@ -334,12 +334,7 @@ class PPOTrainer:
         self.config, self.out_dir, self.command = config, Path(out_dir), command or "PPOTrainer"
         self.rank, self.world = init_distributed()
         self.progress = progress and self.rank == 0
-        if config.device == "cuda" and not torch.cuda.is_available():
-            raise ConfigError("PPOConfig.device='cuda' but no CUDA device is available")
-        if config.device != "cpu" and torch.cuda.is_available():
-            self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
-        else:
-            self.device = torch.device("cpu")
+        self.device = training_device(config.device, field="PPOConfig.device")
         torch.set_num_threads(config.threads)
         torch.manual_seed(config.seed)
         self.policy_config = config.policy_config()
@@ -785,7 +780,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=PPOConfig.threads)
     parser.add_argument("--checkpoint-every", type=int, default=PPOConfig.checkpoint_every)
-    parser.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    parser.add_argument("--device", default="auto", choices=DEVICES)
     parser.add_argument("--out", type=Path, help="run directory (default runs/policy_<kind>)")
     parser.add_argument("--fresh", action="store_true", help="start over even if --out holds a resume state")
     args = parser.parse_args(argv)

@@ -63,6 +63,7 @@ from tqdm import tqdm  # noqa: E402
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
+from m2h_ros.models.device import DEVICES, check_device, training_device
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import BACKBONES, PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
@@ -139,14 +140,10 @@ class PretrainConfig:
         if self.train_data.steps != 1:
             raise ConfigError("PretrainConfig.train_data must draw single observations (steps=1)")
         self.model.check_stft(self.train_data.env.stft)
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise ConfigError(f"PretrainConfig.device={self.device!r} must be auto, cpu or cuda")
+        check_device(self.device, field="PretrainConfig.device")
 
     def torch_device(self) -> torch.device:
-        """The device ``device`` names on this machine (auto: the first CUDA device when present)."""
-        if self.device == "cuda" and not torch.cuda.is_available():
-            raise ConfigError("PretrainConfig.device='cuda' but no CUDA device is available")
-        return torch.device("cuda" if self.device != "cpu" and torch.cuda.is_available() else "cpu")
+        return training_device(self.device, field="PretrainConfig.device")
 
     def result_fields(self) -> dict[str, Any]:
         """The fields a resumed run must share with the run it continues. Not the epoch counts while
@@ -515,7 +512,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="anneal stage 1's learning rate to this along a cosine (default: constant)")
     parser.add_argument("--threads", type=int, default=defaults.threads, help="torch threads of the trainer")
     parser.add_argument("--workers", type=int, default=defaults.workers, help="data loader processes")
-    parser.add_argument("--device", default=defaults.device, choices=("auto", "cpu", "cuda"),
+    parser.add_argument("--device", default=defaults.device, choices=DEVICES,
                         help="where the networks train (auto: CUDA when present)")
     parser.add_argument("--fresh", action="store_true", help="ignore a saved training state and start afresh")
     return parser
