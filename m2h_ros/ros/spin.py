@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
@@ -62,5 +63,8 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
             print(f"{node.get_name()}: cpu time {total:.2f} s (user {usage.ru_utime:.2f}, "
                   f"system {usage.ru_stime:.2f}){since}", flush=True)
             node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            rclpy.try_shutdown()
+        except RCLError:  # a Ctrl-C handler shut the context down between try_shutdown's check and its call
+            pass
     sys.exit(code)
