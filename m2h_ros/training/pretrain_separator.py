@@ -506,6 +506,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eq-db", type=float, default=0.0,
                         help="spectral colouring augmentation of each source, at most this many dB "
                              "(training streams; default 0: none)")
+    parser.add_argument("--speed-min", type=float, default=1.0,
+                        help="slow-down augmentation: each training sequence played at a speed uniform in "
+                             "[SPEED_MIN, 1] (lower pitch, longer room; default 1: none)")
     parser.add_argument("--init-from", type=Path, default=None,
                         help="start stage 1 from this separator checkpoint's weights (fine-tuning)")
     parser.add_argument("--final-lr", type=float, default=None,
@@ -527,8 +530,10 @@ def config_from_args(args: argparse.Namespace) -> PretrainConfig:
                       workers=args.workers, device=args.device, final_lr=args.final_lr,
                       init_from=repo_relative(args.init_from) if args.init_from else "",
                       train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
-                                                       source_nodes=args.source_nodes, eq_db=args.eq_db),
+                                                       source_nodes=args.source_nodes, eq_db=args.eq_db,
+                                                       speed_min=args.speed_min),
                       refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed, eq_db=args.eq_db,
+                                                       speed_min=args.speed_min,
                                                        scenes=args.train_scenes, source_nodes=args.source_nodes),
                       val_data=StreamConfig.validation(source_nodes=args.source_nodes))
 

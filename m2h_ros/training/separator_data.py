@@ -19,7 +19,9 @@ One *sequence* of a batch:
    RMS of the clean mixture, the environment's ``EnvConfig.mic_noise`` model; and, with ``eq_db`` > 0, a
    random smooth **spectral colouring** of each source (see :func:`colouring_gains`): a sound of the
    same class recorded elsewhere differs from the heard clips mostly in its spectral envelope, which a
-   separator otherwise learns clip by clip.
+   separator otherwise learns clip by clip; and, with ``speed_min`` < 1, a **slow-down** of each
+   sequence (see :func:`slow_down`): every signal of it played at a speed uniform in [speed_min, 1],
+   new pitches and tempi from the same clips.
 
 Per observation a batch holds |STFT| of the (augmented) binaural mixture, what the separator takes,
 and |STFT| of the target's share of it (its render x gain / number of sources: the mixture is the
@@ -40,6 +42,7 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
+from scipy.signal import resample_poly
 from torch.utils.data import IterableDataset, get_worker_info
 from tqdm import tqdm
 
@@ -69,6 +72,9 @@ POLICY_PROBS = np.array([0.5, 0.25, 0.25])
 # Microphone noise levels of the training augmentation (std relative to the clean mixture's RMS,
 # SNR 26 / 20 / 14 dB): the levels to run the noise-robustness experiment at.
 MIC_NOISE_LEVELS = (0.05, 0.1, 0.2)
+# Slow-down: speeds are SPEED_STEPS-ths (a rational resampling ratio); SPEED_MIN_LIMIT bounds how far.
+SPEED_STEPS = 64
+SPEED_MIN_LIMIT = 0.5
 _STREAM_SALT = 0x736570  # separates the stream's draws from other uses of the same seed
 _SUBSET_SALT = 0x6E6F6465
 
@@ -96,6 +102,7 @@ class StreamConfig:
     noise_levels: tuple[float, ...] = ()  # microphone noise levels, one drawn per noisy sequence
     noise_fraction: float = 0.0  # share of sequences with microphone noise
     eq_db: float = 0.0  # per-source spectral colouring of at most this many dB (0: none)
+    speed_min: float = 1.0  # per-sequence playback speed uniform in [speed_min, 1] (1: none)
     seed: int = 0
     env: EnvConfig = field(default_factory=_audio_only)
 
@@ -119,6 +126,8 @@ class StreamConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and 0 <= value <= 20):
                 raise ConfigError(f"StreamConfig.{name} must be in [0, 20], got {value!r}")
+        if not (np.isfinite(self.speed_min) and SPEED_MIN_LIMIT <= self.speed_min <= 1):
+            raise ConfigError(f"StreamConfig.speed_min must be in [{SPEED_MIN_LIMIT}, 1], got {self.speed_min!r}")
         if not 0 <= self.noise_fraction <= 1 or (self.noise_fraction > 0 and not self.noise_levels):
             raise ConfigError(f"StreamConfig.noise_fraction must be in [0, 1] (> 0 needs noise_levels), "
                               f"got {self.noise_fraction!r} with levels {self.noise_levels}")
@@ -130,11 +139,11 @@ class StreamConfig:
 
     @classmethod
     def training(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 1, scenes: int | None = None,
-                 source_nodes: int | None = None, eq_db: float = 0.0) -> StreamConfig:
+                 source_nodes: int | None = None, eq_db: float = 0.0, speed_min: float = 1.0) -> StreamConfig:
         """Train scenes, heard sounds, near and far starts, gain +-3 dB, noise in half the sequences."""
         return cls(episodes=_near_and_far("train", "heard"), scenes=scenes, source_nodes=source_nodes,
                    batch_size=batch_size, steps=steps, gain_db=3.0, noise_levels=MIC_NOISE_LEVELS,
-                   noise_fraction=0.5, eq_db=eq_db, seed=seed)
+                   noise_fraction=0.5, eq_db=eq_db, speed_min=speed_min, seed=seed)
 
     @classmethod
     def validation(cls, *, seed: int = 0, batch_size: int = 16, steps: int = 8,
@@ -210,6 +219,27 @@ def _colour(waveform: np.ndarray, gains: np.ndarray) -> np.ndarray:
     return np.fft.irfft(spectrum, n=waveform.shape[-1], axis=-1).astype(np.float32)
 
 
+def slow_down(waveform: np.ndarray, numerator: int) -> np.ndarray:
+    """``waveform`` (..., samples) played at speed ``numerator / SPEED_STEPS`` <= 1, same length:
+    y(t) = x(speed t), so every frequency is scaled by the speed and the first ``speed`` of the
+    signal fills it. Applied to a render, that is the render of the slowed clip in a room scaled by
+    1 / speed (all delays and decay times longer): a world the simulator could have made, which is
+    why only slowing down (it needs no samples past the end of the 1 s render) is offered."""
+    if numerator >= SPEED_STEPS:
+        return waveform
+    n = waveform.shape[-1]
+    # A few input samples past what the output needs, so the polyphase filter's end transient falls
+    # after the last kept sample.
+    used = min(n, -(-n * numerator // SPEED_STEPS) + 64)
+    out = resample_poly(waveform[..., :used], SPEED_STEPS, numerator, axis=-1)
+    return np.ascontiguousarray(out[..., :n], dtype=np.float32)
+
+
+def _slow_rows(waveform: np.ndarray, numerators: np.ndarray) -> np.ndarray:
+    """Row ``b`` of ``waveform`` (B, ..., samples) slowed down by ``numerators[b]``."""
+    return np.stack([slow_down(row, int(k)) for row, k in zip(waveform, numerators)])
+
+
 def policy_actions(rng: np.random.Generator, n: int) -> np.ndarray:
     return rng.choice(POLICY_ACTIONS, size=n, p=POLICY_PROBS)
 
@@ -236,6 +266,7 @@ class _Plan:
     noise: np.ndarray  # (B,) level, 0 = none
     noise_seeds: np.ndarray  # (B,)
     colouring: np.ndarray | None  # (B, 2, 2, EQ_COMPONENTS): target / distractors, dB amplitudes / phases
+    speeds: np.ndarray | None  # (B,) slow-down numerators (speed x SPEED_STEPS), every signal of a sequence
 
 
 class BatchSource:
@@ -271,7 +302,11 @@ class BatchSource:
             amplitudes *= cfg.eq_db / EQ_COMPONENTS
             phases = rng.uniform(0.0, 2.0 * np.pi, (cfg.batch_size, 2, EQ_COMPONENTS))
             colouring = np.stack([amplitudes, phases], axis=2)
-        return _Plan(episodes, actions, gains, np.where(noisy, levels, 0.0), noise_seeds, colouring)
+        speeds = None
+        if cfg.speed_min < 1:  # drawn after the colouring, for the same reason
+            lowest = int(np.ceil(cfg.speed_min * SPEED_STEPS))
+            speeds = rng.integers(lowest, SPEED_STEPS + 1, size=cfg.batch_size)
+        return _Plan(episodes, actions, gains, np.where(noisy, levels, 0.0), noise_seeds, colouring, speeds)
 
     def batch(self, index: int) -> SeparatorBatch:
         cfg, plan = self.config, self.plan(index)
@@ -298,6 +333,8 @@ class BatchSource:
             other = obs["audio"] - share
             if target_eq is not None:
                 share, other = _colour(share, target_eq), _colour(other, other_eq)
+            if plan.speeds is not None:
+                share, other = _slow_rows(share, plan.speeds), _slow_rows(other, plan.speeds)
             mixture = target_gain * share + other_gain * other
             rms = np.sqrt(np.mean(np.square(mixture), axis=(1, 2)))
             for row in np.flatnonzero(plan.noise):
@@ -307,6 +344,8 @@ class BatchSource:
             mixtures.append(np.abs(stft(mixture, config=stft_config)))
             shares.append(np.abs(stft(target_gain * share, config=stft_config)))
         dry = info["target_monaural"] if target_eq is None else _colour(info["target_monaural"], target_eq)
+        if plan.speeds is not None:
+            dry = _slow_rows(dry, plan.speeds)
         monaural = np.abs(stft(target_gain[:, 0] * dry, config=stft_config))[:, None]
 
         def sliced(array: np.ndarray) -> torch.Tensor:

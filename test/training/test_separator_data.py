@@ -13,6 +13,7 @@ from m2h_ros.core.world.env import BatchEnv
 from m2h_ros.errors import ConfigError
 from m2h_ros.training.separator_data import (
     EQ_COMPONENTS,
+    SPEED_STEPS,
     BatchSource,
     SeparatorStream,
     StreamConfig,
@@ -20,6 +21,7 @@ from m2h_ros.training.separator_data import (
     colouring_gains,
     fixed_set,
     policy_actions,
+    slow_down,
     source_subset,
     stream_scenes,
     walk,
@@ -122,6 +124,40 @@ def test_colouring_shapes_the_target_and_its_share_alike(plain, folder_library):
     assert not torch.allclose(coloured.mixture, base.mixture)
 
 
+def test_slow_down_scales_every_frequency_and_keeps_the_length():
+    rate = 16000
+    t = np.arange(rate) / rate
+    tones = np.stack([np.sin(2 * np.pi * 1000 * t), np.sin(2 * np.pi * 3000 * t)]).astype(np.float32)
+    np.testing.assert_array_equal(slow_down(tones, SPEED_STEPS), tones)  # speed 1: untouched
+    slowed = slow_down(tones, 48)  # speed 0.75
+    assert slowed.shape == tones.shape and slowed.dtype == np.float32
+    peaks = np.abs(np.fft.rfft(slowed * np.hanning(rate), axis=-1)).argmax(axis=-1)  # 1 Hz bins
+    assert peaks.tolist() == [750, 2250]
+    # y(t) = x(0.75 t): the first three quarters of the signal fill it, to its last sample.
+    np.testing.assert_allclose(slowed[:, ::4][:, 100:-20], tones[:, ::3][:, 100:len(slowed[0, ::4]) - 20], atol=2e-3)
+    assert np.abs(slowed[:, -50:]).max() > 0.9
+
+
+def test_slow_down_applies_one_speed_to_every_signal_of_a_sequence(plain, folder_library):
+    slowed_config = dataclasses.replace(plain, speed_min=0.8)
+    source = BatchSource(slowed_config, folder_library)
+    slowed, base, plan = source.batch(1), BatchSource(plain, folder_library).batch(1), source.plan(1)
+    assert plan.episodes == BatchSource(plain, folder_library).plan(1).episodes  # drawn after the rest
+    assert plan.speeds.min() >= 0.8 * SPEED_STEPS and plan.speeds.max() <= SPEED_STEPS and np.ptp(plan.speeds) > 0
+    n_slices, rate = plain.env.stft.n_freq_slices, plain.env.stft.sample_rate
+    bins = np.fft.rfftfreq(plain.env.stft.n_fft, 1 / rate)
+
+    def centroid(spectra):  # (B, F, frames) magnitudes -> spectral centroid per row, Hz
+        power = spectra.sum(-1) ** 2
+        return (power * bins[:power.shape[1]]).sum(1) / power.sum(1)
+
+    speed = plan.speeds / SPEED_STEPS
+    for field in ("monaural", "share"):
+        spectra = [from_slices(getattr(b, field), n_slices=n_slices) for b in (slowed, base)]
+        spectra = [x.flatten(1, -3).sum(1).numpy() if field == "share" else x[:, 0].numpy() for x in spectra]
+        np.testing.assert_allclose(centroid(spectra[0]) / centroid(spectra[1]), speed, rtol=0.05)
+
+
 def test_noise_has_the_drawn_level(plain, folder_library):
     noisy_config = dataclasses.replace(plain, noise_levels=(0.3,), noise_fraction=1.0)
     noisy, clean = BatchSource(noisy_config, folder_library).batch(0), BatchSource(plain, folder_library).batch(0)
@@ -193,6 +229,8 @@ def test_config_validation(small_stream):
         dataclasses.replace(small_stream, gain_db=-1.0)
     with pytest.raises(ConfigError, match="eq_db"):
         dataclasses.replace(small_stream, eq_db=float("nan"))
+    with pytest.raises(ConfigError, match="speed_min"):
+        dataclasses.replace(small_stream, speed_min=0.2)
     with pytest.raises(ConfigError, match="mic_noise"):
         dataclasses.replace(small_stream, env=dataclasses.replace(small_stream.env, mic_noise=0.1))
     with pytest.raises(ConfigError, match="n_distractors"):
