@@ -47,11 +47,14 @@ run that stops at a checkpoint and restarts continues with exactly the numbers i
 
 from __future__ import annotations
 
+import argparse
 import csv
 import dataclasses
 import json
 import math
 import os
+import shlex
+import sys
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -756,11 +759,7 @@ def train(config: PPOConfig, library: SoundLibrary, *, out_dir: Path, rir_cache_
         trainer.env.close()
 
 
-def main(argv: list[str] | None = None) -> int:
-    import argparse  # noqa: PLC0415
-    import shlex  # noqa: PLC0415
-    import sys  # noqa: PLC0415
-
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Train a learned controller with PPO (DD-PPO under torchrun).")
     parser.add_argument("--kind", required=True, choices=sorted(KINDS))
     parser.add_argument("--preset", default="compact", choices=PRESET_NAMES)
@@ -777,22 +776,33 @@ def main(argv: list[str] | None = None) -> int:
                         help="keep the separator's f^R as it is (quality trains it by default)")
     parser.add_argument("--quality-reward", default=PPOConfig.quality_reward, choices=QUALITY_REWARDS,
                         help="quality: the measure whose improvement is the reward (nmse: the original's)")
+    parser.add_argument("--entropy-coef", type=float, default=None,
+                        help="entropy coefficient (default: the kind's, the seed's 0.01 for quality, 0.2 otherwise)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=PPOConfig.threads)
     parser.add_argument("--checkpoint-every", type=int, default=PPOConfig.checkpoint_every)
     parser.add_argument("--device", default="auto", choices=DEVICES)
     parser.add_argument("--out", type=Path, help="run directory (default runs/policy_<kind>)")
     parser.add_argument("--fresh", action="store_true", help="start over even if --out holds a resume state")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> PPOConfig:
+    """The run :func:`main` makes of ``build_parser()``'s arguments."""
     task = args.task or KINDS[args.kind].task
     episodes = EpisodeConfig(task=task, scene_split="train", sound_split="heard", count=args.episodes, seed=args.seed,
                              max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
-    config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
-                       env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
-                       n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
-                       train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
-                       seed=args.seed, threads=args.threads,
-                       checkpoint_every=args.checkpoint_every, device=args.device)
+    return PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
+                     env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
+                     n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
+                     train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
+                     entropy_coef=args.entropy_coef, seed=args.seed, threads=args.threads,
+                     checkpoint_every=args.checkpoint_every, device=args.device)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    config = config_from_args(args)
     command = shlex.join(["python", "scripts/train_policy.py", *(sys.argv[1:] if argv is None else argv)])
     result = train(config, SoundLibrary.load(), out_dir=args.out or Path("runs") / f"policy_{args.kind}",
                    command=command, fresh=args.fresh)

@@ -18,7 +18,7 @@ from m2h_ros.experiments import reward
 from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
-from m2h_ros.training.ppo import PPOConfig, PPOTrainer, gae, train
+from m2h_ros.training.ppo import PPOConfig, PPOTrainer, build_parser, config_from_args, gae, train
 from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward
 
 TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)  # as separator_path's
@@ -31,6 +31,18 @@ def tiny(fast_env, separator_path, **overrides) -> PPOConfig:
     values = dict(kind="quality", episodes=episodes, env=fast_env, separator=str(separator_path), n_envs=2,
                   n_steps=STEPS, updates=4, checkpoint_every=2, threads=1, lr=3e-3)
     return PPOConfig(**{**values, **overrides})
+
+
+def test_the_command_line_sets_the_entropy_coefficient():
+    parser = build_parser()
+    assert config_from_args(parser.parse_args(["--kind", "quality"])).entropy == 0.01  # the seed's, per kind
+    assert config_from_args(parser.parse_args(["--kind", "navigation"])).entropy == 0.2
+    quality = config_from_args(parser.parse_args(["--kind", "quality", "--entropy-coef", "0.2", "--frozen-refiner"]))
+    assert quality.entropy == 0.2 and quality.train_refiner is False and quality.episodes.task == "near_target"
+    far = config_from_args(parser.parse_args(["--kind", "navigation", "--episodes", "50"]))
+    assert far.episodes.task == "far_target" and far.episodes.count == 50
+    with pytest.raises(ConfigError, match="entropy_coef"):
+        config_from_args(parser.parse_args(["--kind", "quality", "--entropy-coef", "-1"]))
 
 
 def test_gae_matches_a_hand_computation():

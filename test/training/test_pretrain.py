@@ -220,7 +220,10 @@ def test_the_command_line_selects_the_backbone():
         parser.parse_args(["--backbone", "transformer"])
 
 
-def test_the_command_line_colours_the_training_streams_only():
-    coloured = config_from_args(build_parser().parse_args(["--eq-db", "6"]))
-    assert coloured.train_data.eq_db == coloured.refiner_data.eq_db == 6.0 and coloured.val_data.eq_db == 0.0
-    assert config_from_args(build_parser().parse_args([])).train_data.eq_db == 0.0
+def test_the_command_line_augments_the_training_streams_only():
+    augmented = config_from_args(build_parser().parse_args(["--eq-db", "6", "--speed-min", "0.85"]))
+    assert augmented.train_data.eq_db == augmented.refiner_data.eq_db == 6.0 and augmented.val_data.eq_db == 0.0
+    assert augmented.train_data.speed_min == augmented.refiner_data.speed_min == 0.85
+    assert augmented.val_data.speed_min == 1.0
+    plain = config_from_args(build_parser().parse_args([]))
+    assert plain.train_data.eq_db == 0.0 and plain.train_data.speed_min == 1.0
