@@ -29,8 +29,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: idle OpenMP
 
 import torch  # noqa: E402
 
-from m2h_ros.agents.registry import (CONTROLLER_NAMES, GREEDY, LEARNED, SUPERVISED, TRAINING_FREE,  # noqa: E402
-                                     controller_class, make_controller)
+from m2h_ros.agents.registry import (CONTROLLER_NAMES, GREEDY, LEARNED, LEARNED_VARIANTS, SUPERVISED,  # noqa: E402
+                                     TRAINING_FREE, controller_class, make_controller)
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differences, paired_table,  # noqa: E402
                                   summarize, write_results)
@@ -112,6 +112,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         for name in (*TRAINING_FREE, *LEARNED, *SUPERVISED):
             print(f"{name:<18} {controller_class(name).summary}")
+        for spec, variant in LEARNED_VARIANTS.items():
+            print(f"{spec:<18} {variant.summary}")
         print(f"(a learned controller as <name>{GREEDY} takes the most likely action instead of sampling)")
         return 0
     command = shlex.join(["python", "scripts/evaluate.py", *(sys.argv[1:] if argv is None else argv)])

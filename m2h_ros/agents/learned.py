@@ -6,7 +6,9 @@
   on the navigation reward. Four actions.
 * ``move2hear`` (the paper's Move2Hear): near-target pi^Q throughout; far-target pi^N until step
   ``switch_step`` (T^N, default 80 of 100 as the original; choose it on the validation split),
-  then pi^Q with a fresh GRU state (as the original's policy switch).
+  then pi^Q with a fresh GRU state (as the original's policy switch). pi^N's Stop is masked (its
+  probability dropped, the rest renormalised), as the original's far-target composite has no Stop,
+  so the episode runs to its step limit; ``navigation_stop=True`` (spec ``move2hear:stop``) keeps it.
 * ``novelty`` (Sec. 5 baselines): PPO on a count-based exploration reward 1 / sqrt(n) per visited
   node, the same network as pi^Q.
 * ``av_navigator`` (Sec. 5, after Chen et al. 2020): PPO on the mixed binaural spectrogram + the
@@ -35,8 +37,9 @@ import numpy as np
 import torch
 
 from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
-from m2h_ros.agents.registry import GREEDY
+from m2h_ros.agents.registry import GREEDY, NAVIGATION_STOP
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
+from m2h_ros.core.world.episodes import STOP
 from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.models.policy import LoadedPolicy, load_policy, policy_inputs
 from m2h_ros.paths import PACKAGE_DIR
@@ -71,12 +74,20 @@ class PolicyDriver:
         self.hidden = self.net.initial_hidden(n_slots)
         self.starts = np.ones(n_slots, bool)
         self.env_actions = loaded.config.env_actions()
+        self.outputs_without_stop = np.flatnonzero(self.env_actions != STOP)
 
     def reset(self, slot: int) -> None:
         self.starts[slot] = True
 
-    def probabilities(self, obs: ControllerObservation, target_class: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """(R, A) action probabilities of slots ``rows`` (``obs`` holds those rows); advances their state."""
+    def actions(self, *, allow_stop: bool = True) -> np.ndarray:
+        """The environment actions :meth:`probabilities` gives the probabilities of, in its column order."""
+        return self.env_actions if allow_stop else self.env_actions[self.outputs_without_stop]
+
+    def probabilities(self, obs: ControllerObservation, target_class: np.ndarray, rows: np.ndarray, *,
+                      allow_stop: bool = True) -> np.ndarray:
+        """(R, A) probabilities of :meth:`actions` for slots ``rows`` (``obs`` holds those rows); advances
+        their state. ``allow_stop=False``: Stop's probability is dropped and the rest renormalised (a
+        softmax over the other outputs' logits: the same numbers, without underflow to 0 / 0)."""
         inputs = policy_inputs(self.loaded.config, separated_binaural=obs.separated_binaural, monaural=obs.monaural,
                                refined=obs.refined, audio=obs.audio, target_class=target_class, rgb=obs.rgb,
                                stft_config=self.loaded.stft)
@@ -86,7 +97,10 @@ class PolicyDriver:
                                 torch.as_tensor(self.starts[rows], device=self.device))
             self.hidden[index] = out.hidden
         self.starts[rows] = False
-        return torch.softmax(out.logits.double(), dim=-1).cpu().numpy()
+        logits = out.logits.double()
+        if not allow_stop:
+            logits = logits[:, torch.as_tensor(self.outputs_without_stop, device=self.device)]
+        return torch.softmax(logits, dim=-1).cpu().numpy()
 
 
 class LearnedController(Controller):
@@ -101,8 +115,8 @@ class LearnedController(Controller):
         if not isinstance(greedy, bool):
             raise ConfigError(f"greedy={greedy!r} must be a bool")
         self.greedy = greedy
-        if greedy:
-            self.name = type(self).name + GREEDY  # the registry's spec: results say which mode ran
+        # The registry's spec: results say which variant and mode ran.
+        self.name = type(self).name + self._variant() + (GREEDY if greedy else "")
         self.target_class = np.zeros(self.n_slots, np.int64)
         self.drivers = self._drivers(checkpoint)
         self.uses_camera = any(d.loaded.config.camera for d in self.drivers)
@@ -110,6 +124,10 @@ class LearnedController(Controller):
     @abstractmethod
     def _drivers(self, checkpoint: str) -> list[PolicyDriver]:
         """Load the policies this controller runs."""
+
+    def _variant(self) -> str:
+        """The registry spec's suffix of this instance's options (before ``:greedy``)."""
+        return ""
 
     def reset(self, slot: int, start: EpisodeStart) -> None:
         super().reset(slot, start)
@@ -119,15 +137,17 @@ class LearnedController(Controller):
         for driver in self.drivers:
             driver.reset(slot)
 
-    def _choose(self, driver: PolicyDriver, obs: ControllerObservation, rows: np.ndarray) -> np.ndarray:
-        """Environment actions of slots ``rows`` from ``driver`` (obs: all slots)."""
-        probs = driver.probabilities(obs.rows(rows), self.target_class[rows], rows)
+    def _choose(self, driver: PolicyDriver, obs: ControllerObservation, rows: np.ndarray, *,
+                allow_stop: bool = True) -> np.ndarray:
+        """Environment actions of slots ``rows`` from ``driver`` (obs: all slots); ``allow_stop=False``
+        chooses among the other actions, Stop's probability dropped (sampled and greedy alike)."""
+        probs = driver.probabilities(obs.rows(rows), self.target_class[rows], rows, allow_stop=allow_stop)
         if self.greedy:
             picks = probs.argmax(axis=1)
         else:
             draws = np.array([self.rngs[slot].random() for slot in rows.tolist()])
             picks = np.minimum((probs.cumsum(axis=1) < draws[:, None]).sum(axis=1), probs.shape[1] - 1)
-        return driver.env_actions[picks]
+        return driver.actions(allow_stop=allow_stop)[picks]
 
 
 class SinglePolicy(LearnedController):
@@ -163,16 +183,23 @@ class AVNavigator(SinglePolicy):
 
 
 class Move2Hear(LearnedController):
-    """The paper's Move2Hear: pi^Q near-target; far-target pi^N (+ Stop) until step ``switch_step``, then pi^Q."""
+    """The paper's Move2Hear: pi^Q near-target; far-target pi^N until step ``switch_step``, then pi^Q.
+
+    pi^N's Stop is masked unless ``navigation_stop``: the original's far-target composite has no Stop
+    (its pi^N + Stop is the navigation experiment's policy), so the episode runs to its step limit.
+    """
 
     name = "move2hear"
-    summary = "Move2Hear: pi^Q near-target; pi^N until step T^N, then pi^Q far-target (paper Sec. 4)"
+    summary = "Move2Hear: pi^Q near-target; pi^N (Stop masked) until step T^N, then pi^Q far-target (paper Sec. 4)"
 
     def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False,
-                 switch_step: int = DEFAULT_SWITCH_STEP) -> None:
+                 switch_step: int = DEFAULT_SWITCH_STEP, navigation_stop: bool = False) -> None:
         if isinstance(switch_step, bool) or not isinstance(switch_step, (int, np.integer)) or switch_step < 0:
             raise ConfigError(f"switch_step={switch_step!r} must be a non-negative int")
+        if not isinstance(navigation_stop, bool):
+            raise ConfigError(f"navigation_stop={navigation_stop!r} must be a bool")
         self.switch_step = int(switch_step)
+        self.navigation_stop = navigation_stop
         self.far = np.zeros(n_slots, bool)
         super().__init__(n_slots, seed=seed, checkpoint=checkpoint, greedy=greedy)
 
@@ -184,6 +211,9 @@ class Move2Hear(LearnedController):
         self.quality = self._load("quality")
         self.navigation: PolicyDriver | None = None  # loaded at the first far-target episode
         return [self.quality]
+
+    def _variant(self) -> str:
+        return NAVIGATION_STOP if self.navigation_stop else ""
 
     def _load(self, kind: str) -> PolicyDriver:
         return PolicyDriver(load_learned(kind, self.folder / f"policy_{kind}.pt"), self.n_slots)
@@ -201,7 +231,8 @@ class Move2Hear(LearnedController):
         # at the switch step far-target.
         navigating = self.far & (obs.step < self.switch_step)
         actions = np.empty(self.n_slots, np.int64)
-        for driver, rows in ((self.navigation, np.flatnonzero(navigating)), (self.quality, np.flatnonzero(~navigating))):
+        for driver, rows, allow_stop in ((self.navigation, np.flatnonzero(navigating), self.navigation_stop),
+                                         (self.quality, np.flatnonzero(~navigating), True)):
             if len(rows):
-                actions[rows] = self._choose(driver, obs, rows)
+                actions[rows] = self._choose(driver, obs, rows, allow_stop=allow_stop)
         return actions

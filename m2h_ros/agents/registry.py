@@ -4,6 +4,7 @@ accept. Implementations are imported when made, so listing names imports nothing
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 
 from m2h_ros.agents.base import Controller
 from m2h_ros.errors import ConfigError
@@ -30,15 +31,43 @@ LEARNED = {
 SUPERVISED = {
     "gan_et_al": "m2h_ros.agents.gan:GanEtAl",
 }
-# "<learned name>:greedy" takes each step's most likely action instead of sampling (the original
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A registry spec that is a learned controller with some keyword options set."""
+
+    name: str  # the learned controller (a LEARNED key)
+    options: dict
+    summary: str
+
+
+# "move2hear:stop" is the composite with pi^N's Stop kept (a far-target episode ends when pi^N stops);
+# plain "move2hear" masks it, as the original's far-target composite has no Stop (docs/policies.md).
+NAVIGATION_STOP = ":stop"
+LEARNED_VARIANTS = {
+    "move2hear" + NAVIGATION_STOP: Variant("move2hear", {"navigation_stop": True},
+                                           "Move2Hear with pi^N's Stop kept: a far-target episode ends when pi^N stops"),
+}
+# "<learned spec>:greedy" takes each step's most likely action instead of sampling (the original
 # evaluates sampled actions); results are labelled with the whole spec.
 GREEDY = ":greedy"
-CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED, *SUPERVISED, *(name + GREEDY for name in LEARNED))
+LEARNED_SPECS = (*LEARNED, *LEARNED_VARIANTS)
+CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED_SPECS, *SUPERVISED, *(spec + GREEDY for spec in LEARNED_SPECS))
+
+
+def _learned_spec(spec: str) -> tuple[str, dict] | None:
+    """(learned name, options) a learned controller's spec stands for; None if it is not one."""
+    base = spec.removesuffix(GREEDY)
+    variant = LEARNED_VARIANTS.get(base, Variant(base, {}, ""))
+    if variant.name not in LEARNED:
+        return None
+    return variant.name, {**variant.options, "greedy": spec.endswith(GREEDY)}
 
 
 def controller_class(name: str) -> type[Controller]:
-    base = name.removesuffix(GREEDY)
-    target = TRAINING_FREE.get(name) or SUPERVISED.get(name) or (LEARNED.get(base) if base in LEARNED else None)
+    learned = _learned_spec(name)
+    target = TRAINING_FREE.get(name) or SUPERVISED.get(name) or (LEARNED[learned[0]] if learned else None)
     if target is None:
         raise ConfigError(f"unknown controller {name!r}; available: {', '.join(CONTROLLER_NAMES)}")
     module, cls = target.split(":")
@@ -47,14 +76,19 @@ def controller_class(name: str) -> type[Controller]:
 
 def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str = "", **options) -> Controller:
     """A controller of ``n_slots`` slots; ``checkpoint`` and ``options`` (e.g. move2hear's
-    ``switch_step``, gan_et_al's ``replan_every``) are for learned and supervised controllers only."""
+    ``switch_step`` and ``navigation_stop``, gan_et_al's ``replan_every``) are for learned and
+    supervised controllers only; a spec's own options (``:greedy``, ``:stop``) cannot be passed again."""
     cls = controller_class(name)
     if name in TRAINING_FREE:
         if checkpoint or options:
             raise ConfigError(f"controller {name!r} needs no training; it takes no checkpoint or options")
         return cls(n_slots, seed=seed)
-    if name not in SUPERVISED:
-        options = dict(options, greedy=name.endswith(GREEDY))
+    learned = _learned_spec(name)
+    if learned:
+        clash = sorted(set(options) & set(learned[1]))
+        if clash:
+            raise ConfigError(f"controller {name!r} sets {', '.join(clash)} itself; do not pass it as an option")
+        options = {**options, **learned[1]}
     try:
         return cls(n_slots, seed=seed, checkpoint=checkpoint, **options)
     except TypeError as error:  # an option the class does not take

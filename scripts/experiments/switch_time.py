@@ -6,7 +6,8 @@
 
 Move2Hear on far-target test episodes navigates with pi^N until step T^N, then improves the estimate
 with pi^Q (``move2hear``'s ``switch_step``); 100 is "no switch" (pi^N throughout; the episode has 100
-steps), 0 is pi^Q throughout. Pick T^N on the validation split for the shipped default (80, the
+steps), 0 is pi^Q throughout. Each T^N is also compared with the default's (80) on the same episodes. pi^N's Stop is masked, as in the original's composite, so every episode
+runs to step 100; ``--controllers move2hear:stop`` keeps it (an episode ends where pi^N stops). Pick T^N on the validation split for the shipped default (80, the
 original's): ``--scene-split val``. The paper's finding (Supp. Sec. 4): switching late enough to reach the target, early
 enough to refine there, beats both extremes. Needs the shipped pi^Q and pi^N (docs/policies.md).
 """
@@ -16,13 +17,18 @@ import sys
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from m2h_ros.agents.learned import DEFAULT_SWITCH_STEP  # noqa: E402
 from m2h_ros.experiments.cli import sweep_main  # noqa: E402
 from m2h_ros.experiments.sweep import Condition  # noqa: E402
 
 
+def label(switch_step: int) -> str:
+    return f"T^N = {switch_step}"
+
+
 def conditions(args):
     steps = [int(v) for v in args.switch_steps.split(",")]
-    return [Condition(label=f"T^N = {t}", x=t, controller={"switch_step": t}, episodes={"scene_split": args.scene_split})
+    return [Condition(label=label(t), x=t, controller={"switch_step": t}, episodes={"scene_split": args.scene_split})
             for t in steps]
 
 
@@ -36,4 +42,4 @@ if __name__ == "__main__":
     sys.exit(sweep_main(None, script=__file__, doc=__doc__, conditions=conditions, controllers="move2hear",
                         task="far_target", title="Far-target final-step SI-SDR vs the switch step T^N",
                         xlabel="switch step T^N (pi^N before, pi^Q after)",
-                        add_arguments=arguments))
+                        add_arguments=arguments, condition_reference=label(DEFAULT_SWITCH_STEP)))

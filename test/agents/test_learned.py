@@ -8,7 +8,7 @@ import torch
 from m2h_ros.agents import learned
 from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
 from m2h_ros.agents.registry import LEARNED, controller_class, make_controller
-from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT
 from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.models.policy import PolicyConfig, PolicyNet, policy_inputs, save_policy
 
@@ -89,17 +89,20 @@ def test_actions_are_the_networks_with_greedy_and_sampled_modes(tmp_path):
     assert [int(alone.act(observation(3, step, seed=step).rows(np.array([2])))[0]) for step in range(12)] == in_batch
 
 
+NAVIGATION = PolicyConfig(**{**SMALL.to_dict(), "stop": True})
+
+
 def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_path):
-    saved(tmp_path / "policy_navigation.pt", PolicyConfig(**{**SMALL.to_dict(), "stop": True}), "navigation",
-          favour=0)  # always STOP
+    saved(tmp_path / "policy_navigation.pt", NAVIGATION, "navigation", favour=0)  # always STOP
     saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
-    controller = make_controller("move2hear", 2, checkpoint=str(tmp_path))
+    controller = make_controller("move2hear:stop", 2, checkpoint=str(tmp_path))  # pi^N's Stop kept
     assert isinstance(controller, learned.Move2Hear) and controller.switch_step == 80
+    assert controller.navigation_stop and controller.name == "move2hear:stop"
     controller.reset(0, start("far_target"))
     controller.reset(1, start("near_target"))
     for step, expected in ((0, [STOP, TURN_LEFT]), (79, [STOP, TURN_LEFT]), (80, [TURN_LEFT, TURN_LEFT])):
         np.testing.assert_array_equal(controller.act(observation(2, step)), expected)
-    early = make_controller("move2hear", 1, checkpoint=str(tmp_path), switch_step=3)
+    early = make_controller("move2hear:stop", 1, checkpoint=str(tmp_path), switch_step=3)
     early.reset(0, start("far_target"))
     assert [int(early.act(observation(1, s))[0]) for s in range(5)] == [STOP] * 3 + [TURN_LEFT] * 2
     with pytest.raises(CheckpointError, match="directory"):
@@ -110,6 +113,50 @@ def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_pat
         make_controller("move2hear_quality", 1, checkpoint=str(tmp_path / "policy_quality.pt"), switch_step=3)
     with pytest.raises(ConfigError, match="'doa' needs no training"):
         make_controller("doa", 1, switch_step=3)
+
+
+def test_composite_masks_pi_n_stop_unless_asked_sampled_and_greedy(tmp_path):
+    saved(tmp_path / "policy_navigation.pt", NAVIGATION, "navigation", favour=0)  # STOP's probability ~1
+    saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
+    for spec in ("move2hear", "move2hear:greedy"):
+        controller = make_controller(spec, 2, seed=3, checkpoint=str(tmp_path))
+        assert not controller.navigation_stop and controller.name == spec
+        controller.reset(0, start("far_target", seed=1))
+        controller.reset(1, start("near_target", seed=2))
+        actions = np.array([controller.act(observation(2, step, seed=step)) for step in range(100)])
+        assert STOP not in actions[:, 0] and set(actions[80:, 0]) == {TURN_LEFT}  # pi^Q after T^N
+        assert set(actions[:, 1]) == {TURN_LEFT}  # near-target: pi^Q throughout, as before
+        if spec == "move2hear":  # renormalised over the other three, near-uniform: each one is drawn
+            assert set(actions[:80, 0]) == {MOVE_FORWARD, TURN_LEFT, TURN_RIGHT}
+    greedy_stop = make_controller("move2hear:stop:greedy", 1, checkpoint=str(tmp_path))
+    assert greedy_stop.navigation_stop and greedy_stop.greedy and greedy_stop.name == "move2hear:stop:greedy"
+    greedy_stop.reset(0, start("far_target"))
+    assert greedy_stop.act(observation(1)).tolist() == [STOP]
+    with pytest.raises(ConfigError, match="'move2hear:stop' sets navigation_stop itself"):
+        make_controller("move2hear:stop", 1, checkpoint=str(tmp_path), navigation_stop=False)
+    with pytest.raises(ConfigError, match="navigation_stop=1 must be a bool"):
+        make_controller("move2hear", 1, checkpoint=str(tmp_path), navigation_stop=1)
+    with pytest.raises(ConfigError, match="unknown controller 'move2hear_navigation:stop'"):
+        make_controller("move2hear_navigation:stop", 1)
+    with pytest.raises(ConfigError, match="'move2hear_navigation': .*navigation_stop"):
+        make_controller("move2hear_navigation", 1, checkpoint=str(tmp_path / "policy_navigation.pt"),
+                        navigation_stop=True)
+
+
+def test_masked_probabilities_are_the_others_renormalised(tmp_path):
+    saved(tmp_path / "n.pt", NAVIGATION, "navigation", seed=2)
+    loaded = learned.load_learned("navigation", tmp_path / "n.pt")
+    full, masked = learned.PolicyDriver(loaded, 3), learned.PolicyDriver(loaded, 3)
+    np.testing.assert_array_equal(masked.actions(allow_stop=False), [MOVE_FORWARD, TURN_LEFT, TURN_RIGHT])
+    rows, target = np.arange(3), np.array([0, 1, 2])
+    for step in range(3):  # the GRU state advances alike: the mask changes the choice, not the network
+        obs = observation(3, step, seed=step)
+        p_full = full.probabilities(obs, target, rows)
+        p_masked = masked.probabilities(obs, target, rows, allow_stop=False)
+        keep = full.actions() != STOP
+        assert 0.1 < p_full[:, ~keep].min() and p_masked.shape == (3, 3)  # Stop had real weight
+        np.testing.assert_allclose(p_masked, p_full[:, keep] / p_full[:, keep].sum(1, keepdims=True), rtol=1e-12)
+        np.testing.assert_allclose(p_masked.sum(1), 1.0, rtol=1e-12)
 
 
 def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
