@@ -75,6 +75,7 @@ class PolicyDriver:
         self.starts = np.ones(n_slots, bool)
         self.env_actions = loaded.config.env_actions()
         self.outputs_without_stop = np.flatnonzero(self.env_actions != STOP)
+        self._columns_without_stop = torch.as_tensor(self.outputs_without_stop, device=self.device)
 
     def reset(self, slot: int) -> None:
         self.starts[slot] = True
@@ -99,7 +100,7 @@ class PolicyDriver:
         self.starts[rows] = False
         logits = out.logits.double()
         if not allow_stop:
-            logits = logits[:, torch.as_tensor(self.outputs_without_stop, device=self.device)]
+            logits = logits[:, self._columns_without_stop]
         return torch.softmax(logits, dim=-1).cpu().numpy()
 
 
