@@ -776,6 +776,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="keep the separator's f^R as it is (quality trains it by default)")
     parser.add_argument("--quality-reward", default=PPOConfig.quality_reward, choices=QUALITY_REWARDS,
                         help="quality: the measure whose improvement is the reward (nmse: the original's)")
+    parser.add_argument("--final-weight", type=float, default=PPOConfig.final_weight,
+                        help="quality: weight of the measure at the last step (0: the reward is the improvement alone)")
+    parser.add_argument("--lr", type=float, default=PPOConfig.lr, help="Adam learning rate (the seed's 1e-4)")
     parser.add_argument("--entropy-coef", type=float, default=None,
                         help="entropy coefficient (default: the kind's, the seed's 0.01 for quality, 0.2 otherwise)")
     parser.add_argument("--seed", type=int, default=0)
@@ -796,7 +799,7 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
-                     entropy_coef=args.entropy_coef, seed=args.seed, threads=args.threads,
+                     final_weight=args.final_weight, lr=args.lr, entropy_coef=args.entropy_coef, seed=args.seed, threads=args.threads,
                      checkpoint_every=args.checkpoint_every, device=args.device)
 
 

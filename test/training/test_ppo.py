@@ -45,6 +45,19 @@ def test_the_command_line_sets_the_entropy_coefficient():
         config_from_args(parser.parse_args(["--kind", "quality", "--entropy-coef", "-1"]))
 
 
+def test_the_command_line_sets_the_final_weight_and_learning_rate():
+    parser = build_parser()
+    default = config_from_args(parser.parse_args(["--kind", "quality"]))
+    assert default.final_weight == 10.0 and default.lr == 1e-4  # the original's final term, the seed's Adam
+    run = config_from_args(parser.parse_args(["--kind", "quality", "--quality-reward", "si_sdr", "--final-weight", "0",
+                                              "--lr", "3e-4"]))
+    assert run.final_weight == 0.0 and run.lr == 3e-4 and run.quality_reward == "si_sdr"
+    with pytest.raises(ConfigError, match="final_weight"):
+        config_from_args(parser.parse_args(["--kind", "quality", "--final-weight", "-1"]))
+    with pytest.raises(ConfigError, match="lr"):
+        config_from_args(parser.parse_args(["--kind", "quality", "--lr", "2"]))
+
+
 def test_gae_matches_a_hand_computation():
     rewards = torch.tensor([[1.0], [2.0], [3.0]])
     values = torch.tensor([[0.5], [1.0], [1.5]])
