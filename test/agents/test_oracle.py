@@ -1,0 +1,48 @@
+"""The privileged approach oracle (a diagnostic, not a baseline): it follows a shortest path to the
+target's node and then holds there, and the controller registry does not hold it."""
+
+import numpy as np
+import pytest
+from test_baselines import play
+
+from m2h_ros.agents.base import EpisodeStart
+from m2h_ros.agents.registry import CONTROLLER_NAMES
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, scene_at
+from m2h_ros.core.world.navgrid import N_HEADINGS
+from m2h_ros.errors import ConfigError
+from m2h_ros.experiments.oracle import ApproachOracle, approach_action
+
+
+def test_following_approach_action_walks_a_shortest_path_to_the_goal():
+    grid = scene_at("test", "small", 0).grid
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        start, goal = (int(n) for n in rng.integers(grid.n_nodes, size=2))
+        node, heading, moves, turns = start, int(rng.integers(N_HEADINGS)), 0, 0
+        while (action := approach_action(grid, node, heading, goal)) is not None:
+            if action == MOVE_FORWARD:
+                node, moves = int(grid.forward[node, heading]), moves + 1
+            else:
+                heading = (heading + (1 if action == TURN_LEFT else -1)) % N_HEADINGS
+                turns += 1
+            assert action in (MOVE_FORWARD, TURN_LEFT, TURN_RIGHT) and turns <= 2 * (moves + 1)
+        assert node == goal and moves == grid.geodesic[start, goal]
+
+
+def test_the_oracle_reaches_the_target_node_and_holds_there(folder_library, env_config, small_episodes):
+    episodes = small_episodes(count=6, max_steps=10)
+    record, grids = play(ApproachOracle(len(episodes), episodes=episodes), episodes, folder_library, env_config)
+    targets = np.array([e.target_node for e in episodes])
+    assert (record["node"][-1] == targets).all()
+    arrived = record["node"][:-1] == targets  # (steps, slots): on the target's node before acting
+    assert (record["action"][arrived] == STOP).all()  # near-target hold: Stop, a no-op
+    assert (record["action"][~arrived] != STOP).all()
+    walked = (record["action"] == MOVE_FORWARD).sum(0)
+    assert (walked == [grid.geodesic[e.start_node, e.target_node] for grid, e in zip(grids, episodes)]).all()
+
+
+def test_the_oracle_is_no_registered_controller_and_knows_only_its_episodes(small_episodes):
+    assert ApproachOracle.name not in CONTROLLER_NAMES  # the controller node and evaluate.py cannot run it
+    oracle = ApproachOracle(1, episodes=small_episodes(count=1, max_steps=3))
+    with pytest.raises(ConfigError, match="not in the list"):
+        oracle.reset(0, EpisodeStart("elsewhere", "near_target", "speech", 3, 0))
