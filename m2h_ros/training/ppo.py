@@ -799,8 +799,8 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
-                     final_weight=args.final_weight, lr=args.lr, entropy_coef=args.entropy_coef, seed=args.seed, threads=args.threads,
-                     checkpoint_every=args.checkpoint_every, device=args.device)
+                     final_weight=args.final_weight, lr=args.lr, entropy_coef=args.entropy_coef, seed=args.seed,
+                     threads=args.threads, checkpoint_every=args.checkpoint_every, device=args.device)
 
 
 def main(argv: list[str] | None = None) -> int:
