@@ -16,26 +16,10 @@ import numpy as np
 
 from m2h_ros.agents.base import ControllerObservation, EpisodeStart
 from m2h_ros.agents.baselines import TaskAware, hold_in_place
-from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, Episode
-from m2h_ros.core.world.navgrid import N_HEADINGS, NavGrid, heading_index
+from m2h_ros.core.world.episodes import Episode
+from m2h_ros.core.world.navgrid import NavGrid, heading_index
 from m2h_ros.errors import ConfigError
-
-
-def approach_action(grid: NavGrid, node: int, heading: int, goal: int) -> int | None:
-    """The action that follows a shortest path from (node, heading) to ``goal``; None at the goal.
-
-    MoveForward when it shortens the geodesic; otherwise the turn towards the nearest heading that does
-    (left first on a tie: turning round takes two turns either way)."""
-    if node == goal:
-        return None
-    here = grid.geodesic[node, goal]
-    if grid.geodesic[grid.forward[node, heading], goal] < here:
-        return MOVE_FORWARD
-    for turns, action in ((1, TURN_LEFT), (-1, TURN_RIGHT), (2, TURN_LEFT)):
-        h = (heading + turns) % N_HEADINGS
-        if grid.geodesic[grid.forward[node, h], goal] < here:
-            return action
-    raise ConfigError(f"node {goal} cannot be reached from node {node}")
+from m2h_ros.training.teacher import approach_action
 
 
 class ApproachOracle(TaskAware):

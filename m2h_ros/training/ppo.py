@@ -26,6 +26,8 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
 4. ``ppo_epochs`` passes of ``n_minibatches`` minibatches (whole slot sequences, the GRU re-run from
    the rollout's first hidden state): clipped surrogate x action_coef + clipped value loss x
    value_coef - entropy x entropy_coef; Adam, gradient norm clipped; lr and clip decay linearly.
+   With ``teacher_coef`` > 0 (kickstarting, ``training.teacher``) the loss adds that weight, decaying
+   with lr, x the cross-entropy from the approach teacher's action distribution at each visited state.
 5. f^R (``train_refiner``, default for ``quality`` only): ``refiner_epochs`` passes of L1 between
    f^R(f^M estimate, stored memory) and the ground-truth magnitude, Adam ``refiner_lr`` (the
    original's lr_sep 5e-4), as the original's ``update_sep`` (ppo_epoch passes: 4); f^R's BatchNorm keeps its pretrained
@@ -85,6 +87,7 @@ from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward  # noqa: E402
+from m2h_ros.training.teacher import teacher_probabilities  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -140,6 +143,7 @@ class PPOConfig:
     refiner_epochs: int = 4  # passes of f^R's L1 over each rollout (the original: ppo_epoch)
     quality_reward: str = "nmse"  # quality: the measure whose improvement is the reward (QUALITY_REWARDS)
     final_weight: float = 10.0  # quality: + weight x the measure at the last step (-weight x NMSE for nmse)
+    teacher_coef: float = 0.0  # kickstarting: weight of the approach teacher's cross-entropy (decays with lr); 0: none
     seed: int = 0
     threads: int = 2  # torch intra-op threads and env render threads
     checkpoint_every: int = 25  # updates
@@ -164,7 +168,7 @@ class PPOConfig:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a float in (0, 1]")
         if self.quality_reward not in QUALITY_REWARDS:
             raise ConfigError(f"PPOConfig.quality_reward={self.quality_reward!r} must be one of {QUALITY_REWARDS}")
-        for name in ("action_coef", "value_coef", "max_grad_norm", "final_weight"):
+        for name in ("action_coef", "value_coef", "max_grad_norm", "final_weight", "teacher_coef"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a number >= 0")
@@ -298,7 +302,8 @@ def plot_curve(path: Path, history: list[dict[str, float]], *, kind: str) -> Pat
         twin.set_ylabel("final NMSE")
         twin.legend(loc="lower right", fontsize=8)
     left.set(title=f"PPO {kind}", xlabel="environment steps", ylabel="return")
-    for key, style in (("value_loss", "C1-"), ("action_loss", "C2-"), ("entropy", "C4-"), ("refiner_l1", "C5-")):
+    for key, style in (("value_loss", "C1-"), ("action_loss", "C2-"), ("entropy", "C4-"), ("refiner_l1", "C5-"),
+                       ("teacher_ce", "C6-")):
         right.plot(steps, [h[key] for h in history], style, label=key.replace("_", " "))
     right.set(title="losses", xlabel="environment steps")
     for ax in (left, right):
@@ -327,6 +332,7 @@ class _Rollout:
     monaural: list[torch.Tensor] = field(default_factory=list)  # f^R's inputs and target, sliced
     memory: list[torch.Tensor] = field(default_factory=list)
     target: list[torch.Tensor] = field(default_factory=list)
+    teacher: list[torch.Tensor] = field(default_factory=list)  # (N, outputs): the approach teacher's distribution
 
 
 class PPOTrainer:
@@ -425,6 +431,9 @@ class PPOTrainer:
             rollout.log_probs.append(log_prob)
             rollout.values.append(out.value.cpu())
             rollout.starts.append(starts)
+            if cfg.teacher_coef:
+                rollout.teacher.append(torch.from_numpy(teacher_probabilities(
+                    self.env.current_episodes, self.obs["node"], self.obs["heading"], self.actions.numpy())))
             if self.refining:
                 # f^R learns what acting computed: refine(estimate_t, memory before step t), not the
                 # memory after it (that is refined_t itself).
@@ -536,7 +545,9 @@ class PPOTrainer:
         clip = cfg.clip * self._decay()
         for group in self.optimizer.param_groups:
             group["lr"] = cfg.lr * self._decay()
-        sums, count = np.zeros(3), 0
+        teacher = torch.stack(rollout.teacher) if cfg.teacher_coef else None
+        teacher_weight = cfg.teacher_coef * self._decay()
+        sums, count = np.zeros(4), 0
         per_batch = n // cfg.n_minibatches
         for _ in range(cfg.ppo_epochs):
             order = self.rng.permutation(n)
@@ -556,12 +567,17 @@ class PPOTrainer:
                 clipped = old_values + (out.value - old_values).clamp(-clip, clip)
                 value_loss = 0.5 * torch.max((out.value - target).square(), (clipped - target).square()).mean()
                 loss = cfg.action_coef * action_loss + cfg.value_coef * value_loss - cfg.entropy * entropy
+                # Kickstarting: cross-entropy from the teacher's distribution at the states the student visited.
+                teacher_ce = (-(teacher[:, slots].to(dev) * log_probs_all).sum(-1).mean() if teacher is not None
+                              else torch.tensor(float("nan")))
+                if teacher is not None:
+                    loss = loss + teacher_weight * teacher_ce
                 self.optimizer.zero_grad()
                 loss.backward()
                 self._step(self.optimizer, list(self.net.parameters()))
-                sums += [value_loss.item(), action_loss.item(), entropy.item()]
+                sums += [value_loss.item(), action_loss.item(), entropy.item(), teacher_ce.item()]
                 count += 1
-        return dict(zip(("value_loss", "action_loss", "entropy"), (sums / count).tolist(), strict=True))
+        return dict(zip(("value_loss", "action_loss", "entropy", "teacher_ce"), (sums / count).tolist(), strict=True))
 
     def _step(self, optimizer: torch.optim.Optimizer, params: list[torch.nn.Parameter]) -> None:
         """All-reduce (DD-PPO), clip the gradient norm, step."""
@@ -779,6 +795,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--final-weight", type=float, default=PPOConfig.final_weight,
                         help="quality: weight of the measure at the last step (0: the reward is the improvement alone)")
     parser.add_argument("--lr", type=float, default=PPOConfig.lr, help="Adam learning rate (the seed's 1e-4)")
+    parser.add_argument("--teacher-coef", type=float, default=PPOConfig.teacher_coef,
+                        help="kickstart with the approach teacher (m2h_ros/training/teacher.py): weight of its "
+                             "cross-entropy, decaying with lr (0: plain PPO)")
     parser.add_argument("--entropy-coef", type=float, default=None,
                         help="entropy coefficient (default: the kind's, the seed's 0.01 for quality, 0.2 otherwise)")
     parser.add_argument("--seed", type=int, default=0)
@@ -799,7 +818,8 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
-                     final_weight=args.final_weight, lr=args.lr, entropy_coef=args.entropy_coef, seed=args.seed,
+                     final_weight=args.final_weight, lr=args.lr, teacher_coef=args.teacher_coef,
+                     entropy_coef=args.entropy_coef, seed=args.seed,
                      threads=args.threads, checkpoint_every=args.checkpoint_every, device=args.device)
 
 

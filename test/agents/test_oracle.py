@@ -7,26 +7,9 @@ from test_baselines import play
 
 from m2h_ros.agents.base import EpisodeStart
 from m2h_ros.agents.registry import CONTROLLER_NAMES
-from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, scene_at
-from m2h_ros.core.world.navgrid import N_HEADINGS
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP
 from m2h_ros.errors import ConfigError
-from m2h_ros.experiments.oracle import ApproachOracle, approach_action
-
-
-def test_following_approach_action_walks_a_shortest_path_to_the_goal():
-    grid = scene_at("test", "small", 0).grid
-    rng = np.random.default_rng(0)
-    for _ in range(50):
-        start, goal = (int(n) for n in rng.integers(grid.n_nodes, size=2))
-        node, heading, moves, turns = start, int(rng.integers(N_HEADINGS)), 0, 0
-        while (action := approach_action(grid, node, heading, goal)) is not None:
-            if action == MOVE_FORWARD:
-                node, moves = int(grid.forward[node, heading]), moves + 1
-            else:
-                heading = (heading + (1 if action == TURN_LEFT else -1)) % N_HEADINGS
-                turns += 1
-            assert action in (MOVE_FORWARD, TURN_LEFT, TURN_RIGHT) and turns <= 2 * (moves + 1)
-        assert node == goal and moves == grid.geodesic[start, goal]
+from m2h_ros.experiments.oracle import ApproachOracle
 
 
 def test_the_oracle_reaches_the_target_node_and_holds_there(folder_library, env_config, small_episodes):

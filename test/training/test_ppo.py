@@ -278,7 +278,7 @@ def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folde
     monkeypatch.setattr(policy_module.ConvEncoder, "forward", lambda self, x: self.cnn(x.contiguous()))
     monkeypatch.setattr(policy_module.PolicyNet, "_recur", plain_recur)
     plain_losses, plain_weights = run(plain_refiner)
-    assert fast_losses == pytest.approx(plain_losses, rel=1e-4, abs=1e-6)
+    assert fast_losses == pytest.approx(plain_losses, rel=1e-4, abs=1e-6, nan_ok=True)  # teacher_ce: nan, no teacher
     for fast, plain in zip(fast_weights, plain_weights, strict=True):
         for name, tensor in plain.items():
             torch.testing.assert_close(fast[name], tensor, rtol=1e-4, atol=1e-6, msg=name)

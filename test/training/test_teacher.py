@@ -1,0 +1,104 @@
+"""The approach teacher that kickstarts PPO: its path is a shortest one, its distribution says Stop or
+turn on the target's node by the policy's actions, and its term in the PPO update moves the policy
+towards it on the states the rollout visited."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, scene_at
+from m2h_ros.core.world.navgrid import N_HEADINGS
+from m2h_ros.errors import ConfigError
+from m2h_ros.models.policy import ACTIONS_NO_STOP, ACTIONS_WITH_STOP
+from m2h_ros.training.ppo import PPOTrainer, build_parser, config_from_args, train
+from m2h_ros.training.teacher import approach_action, teacher_probabilities
+from test_ppo import tiny
+
+
+@dataclasses.dataclass(frozen=True)
+class _Episode:
+    """What the teacher reads of an episode."""
+
+    grid_scene: object
+    target_node: int
+
+    def scene(self):
+        return self.grid_scene
+
+
+def test_following_approach_action_walks_a_shortest_path_to_the_goal():
+    grid = scene_at("test", "small", 0).grid
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        start, goal = (int(n) for n in rng.integers(grid.n_nodes, size=2))
+        node, heading, moves, turns = start, int(rng.integers(N_HEADINGS)), 0, 0
+        while (action := approach_action(grid, node, heading, goal)) is not None:
+            if action == MOVE_FORWARD:
+                node, moves = int(grid.forward[node, heading]), moves + 1
+            else:
+                heading = (heading + (1 if action == TURN_LEFT else -1)) % N_HEADINGS
+                turns += 1
+            assert action in (MOVE_FORWARD, TURN_LEFT, TURN_RIGHT) and turns <= 2 * (moves + 1)
+        assert node == goal and moves == grid.geodesic[start, goal]
+
+
+def test_the_teacher_follows_the_path_and_stops_or_turns_on_the_target():
+    scene = scene_at("test", "small", 0)
+    grid = scene.grid
+    rng = np.random.default_rng(1)
+    nodes, headings = rng.integers(grid.n_nodes, size=40), rng.integers(N_HEADINGS, size=40)
+    goals = (nodes + rng.integers(1, grid.n_nodes, size=40)) % grid.n_nodes  # elsewhere ...
+    goals[:5] = nodes[:5]  # ... but for five slots already on their target's node
+    episodes = [_Episode(scene, int(g)) for g in goals]
+    for actions in (np.array(ACTIONS_NO_STOP), np.array(ACTIONS_WITH_STOP)):
+        probabilities = teacher_probabilities(episodes, nodes, headings, actions)
+        assert probabilities.shape == (40, len(actions)) and np.allclose(probabilities.sum(1), 1)
+        for slot in range(5, 40):
+            expected = approach_action(grid, int(nodes[slot]), int(headings[slot]), int(goals[slot]))
+            assert probabilities[slot, list(actions).index(expected)] == 1
+        on_target = probabilities[:5]
+        if STOP in actions:
+            assert (on_target[:, list(actions).index(STOP)] == 1).all()
+        else:  # pi^Q has no Stop: either turn keeps it on the node
+            turns = [list(actions).index(TURN_LEFT), list(actions).index(TURN_RIGHT)]
+            assert (on_target[:, turns] == 0.5).all()
+    with pytest.raises(ConfigError, match="both turns"):
+        teacher_probabilities(episodes, nodes, headings, np.array([STOP, MOVE_FORWARD, TURN_LEFT]))
+
+
+def test_the_command_line_sets_the_teacher_weight():
+    parser = build_parser()
+    assert config_from_args(parser.parse_args(["--kind", "quality"])).teacher_coef == 0.0  # plain PPO by default
+    assert config_from_args(parser.parse_args(["--kind", "navigation", "--teacher-coef", "2"])).teacher_coef == 2.0
+    with pytest.raises(ConfigError, match="teacher_coef"):
+        config_from_args(parser.parse_args(["--kind", "quality", "--teacher-coef", "-1"]))
+
+
+def _teacher_ce(trainer, rollout) -> float:
+    """Cross-entropy from the teacher to the policy on one rollout's states (as the update computes it)."""
+    with torch.no_grad():
+        out = trainer.net.evaluate(rollout.inputs.flat(), trainer.hidden_start, torch.stack(rollout.starts))
+        return float(-(torch.stack(rollout.teacher) * torch.log_softmax(out.logits, -1)).sum(-1).mean())
+
+
+def test_the_teachers_term_moves_the_policy_towards_the_teacher(fast_env, separator_path, folder_library,
+                                                                 tmp_path):
+    plain = train(tiny(fast_env, separator_path, updates=1), folder_library, out_dir=tmp_path / "plain",
+                  progress=False)
+    assert np.isnan(plain.history[-1]["teacher_ce"])  # logged only when a teacher takes part
+    # Only the teacher's term moves the policy (PPO's terms weighted 0).
+    config = tiny(fast_env, separator_path, kind="navigation", teacher_coef=1.0, action_coef=0.0, value_coef=0.0,
+                  entropy_coef=0.0)
+    trainer = PPOTrainer(config, folder_library, out_dir=tmp_path / "kickstarted", progress=False)
+    try:
+        trainer._begin()
+        rollout, next_value, _ = trainer._collect()
+        assert len(rollout.teacher) == config.n_steps and rollout.teacher[0].shape == (config.n_envs, 4)
+        before = _teacher_ce(trainer, rollout)
+        losses = trainer._update_policy(rollout, next_value)
+        assert losses["teacher_ce"] == pytest.approx(before, rel=0.5)  # its first pass starts from `before`
+        assert _teacher_ce(trainer, rollout) < 0.8 * before
+    finally:
+        trainer.env.close()
