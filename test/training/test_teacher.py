@@ -11,6 +11,7 @@ import torch
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS
 from m2h_ros.errors import ConfigError
+from m2h_ros.experiments.teacher_probe import ProbeData, collect_probe_data, fit_probe, ild_sign_accuracy
 from m2h_ros.models.policy import ACTIONS_NO_STOP, ACTIONS_WITH_STOP
 from m2h_ros.training.ppo import PPOTrainer, build_parser, config_from_args, train
 from m2h_ros.training.teacher import approach_action, teacher_probabilities
@@ -102,3 +103,32 @@ def test_the_teachers_term_moves_the_policy_towards_the_teacher(fast_env, separa
         assert _teacher_ce(trainer, rollout) < 0.8 * before
     finally:
         trainer.env.close()
+
+
+def test_the_probe_reads_the_teachers_states_and_fits_what_is_predictable(fast_env, separator_path,
+                                                                          folder_library, tmp_path):
+    config = tiny(fast_env, separator_path, kind="navigation", teacher_coef=1.0)
+    trainer = PPOTrainer(config, folder_library, out_dir=tmp_path, progress=False)
+    try:
+        data = collect_probe_data(trainer, 2)
+    finally:
+        trainer.env.close()
+    states = 2 * config.n_steps * config.n_envs
+    assert data.ild.shape[0] == data.teacher.shape[0] == states and np.allclose(data.teacher.sum(1), 1)
+    assert list(data.env_actions) == list(ACTIONS_WITH_STOP)
+
+    # Constructed states: the ILD's sign says the turn, so the probe and the sign read it; noise does not.
+    rng = np.random.default_rng(0)
+    left = rng.random(2000) < 0.5
+    ild = rng.normal(size=(2000, 8)) * 0.1 + np.where(left, 0.05, -0.05)[:, None]
+    teacher = np.zeros((2000, 4), np.float32)
+    teacher[np.arange(2000), np.where(left, 2, 3)] = 1  # TURN_LEFT, TURN_RIGHT columns of ACTIONS_WITH_STOP
+    constructed = ProbeData(ild.astype(np.float32), teacher, np.array(ACTIONS_WITH_STOP))
+    fit = fit_probe(constructed, epochs=150)
+    assert fit["prior_ce"] == pytest.approx(np.log(2), abs=0.05) and fit["teacher_entropy"] == pytest.approx(0)
+    assert fit["probe_ce"] < 0.5 * fit["prior_ce"]
+    accuracy, turning = ild_sign_accuracy(constructed)
+    assert turning == 2000 and accuracy > 0.85  # the mean of 8 rows: signal / noise 1.4, ~92%
+    noise = fit_probe(ProbeData(rng.normal(size=(2000, 8)).astype(np.float32), teacher, np.array(ACTIONS_WITH_STOP)),
+                      epochs=150)
+    assert noise["probe_ce"] > 0.9 * noise["prior_ce"]
