@@ -77,7 +77,8 @@ def fit_probe(data: ProbeData, *, hidden: int = 0, epochs: int = 60, held_out: f
             best = min(best, cross_entropy(y_val.numpy(), torch.log_softmax(model(x_val), -1).numpy()))
     teacher = y_val.numpy()
     return {"held_out_states": n_val, "prior_ce": cross_entropy(teacher, np.log(prior.numpy())),
-            "teacher_entropy": cross_entropy(teacher, np.log(np.clip(teacher, 1e-12, None))), "probe_ce": best}
+            "teacher_entropy": cross_entropy(teacher, np.log(np.clip(teacher, 1e-12, None))) + 0.0,  # no -0.0
+            "probe_ce": best}
 
 
 def ild_sign_accuracy(data: ProbeData) -> tuple[float, int]:
