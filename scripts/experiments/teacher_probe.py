@@ -6,7 +6,7 @@
 
 Rollouts of an untrained policy on training episodes (16 slots x 20 steps each, camera off), then a
 linear and a one-hidden-layer probe from the ILD spectrum of the separated binaural estimate to the
-teacher's distribution (``m2h_ros/experiments/teacher_probe.py``). Writes ``results.md`` and
+teacher's distribution (``m2h_ros/training/teacher_probe.py``). Writes ``results.md`` and
 ``results.json``.
 """
 
@@ -24,7 +24,7 @@ from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import TASKS, EpisodeConfig  # noqa: E402
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
-from m2h_ros.experiments.teacher_probe import collect_probe_data, fit_probe, ild_sign_accuracy  # noqa: E402
+from m2h_ros.training.teacher_probe import collect_probe_data, fit_probe, ild_sign_accuracy  # noqa: E402
 from m2h_ros.paths import REPO_DIR  # noqa: E402
 from m2h_ros.training.ppo import TRAIN_FAR_STEPS, PPOConfig, PPOTrainer  # noqa: E402
 

@@ -11,7 +11,7 @@ import torch
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS
 from m2h_ros.errors import ConfigError
-from m2h_ros.experiments.teacher_probe import ProbeData, collect_probe_data, fit_probe, ild_sign_accuracy
+from m2h_ros.training.teacher_probe import ProbeData, collect_probe_data, fit_probe, ild_sign_accuracy
 from m2h_ros.models.policy import ACTIONS_NO_STOP, ACTIONS_WITH_STOP
 from m2h_ros.training.ppo import PPOTrainer, build_parser, config_from_args, train
 from m2h_ros.training.teacher import approach_action, teacher_probabilities
