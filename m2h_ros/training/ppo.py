@@ -567,10 +567,10 @@ class PPOTrainer:
                 clipped = old_values + (out.value - old_values).clamp(-clip, clip)
                 value_loss = 0.5 * torch.max((out.value - target).square(), (clipped - target).square()).mean()
                 loss = cfg.action_coef * action_loss + cfg.value_coef * value_loss - cfg.entropy * entropy
-                # Kickstarting: cross-entropy from the teacher's distribution at the states the student visited.
-                teacher_ce = (-(teacher[:, slots].to(dev) * log_probs_all).sum(-1).mean() if teacher is not None
-                              else torch.tensor(float("nan")))
-                if teacher is not None:
+                if teacher is None:
+                    teacher_ce = torch.tensor(float("nan"))
+                else:  # kickstarting: cross-entropy from the teacher's distribution at the states visited
+                    teacher_ce = -(teacher[:, slots].to(dev) * log_probs_all).sum(-1).mean()
                     loss = loss + teacher_weight * teacher_ce
                 self.optimizer.zero_grad()
                 loss.backward()
