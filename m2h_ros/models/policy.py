@@ -28,7 +28,7 @@ action space): :meth:`PolicyConfig.env_actions` maps network outputs to environm
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -385,3 +385,24 @@ def load_policy(path: str | os.PathLike, *, policy_kind: str | None = None,
     load_state_checked(net, payload["state_dict"], path=path)
     net.to(map_location).eval()
     return LoadedPolicy(net, config, payload["policy_kind"], stft_config, path, payload["metadata"])
+
+
+
+def warm_start(net: PolicyNet, source: LoadedPolicy) -> None:
+    """Copy ``source``'s weights into ``net`` (training starts from them, not from random ones).
+
+    Everything but the action space must match (inputs, camera, widths); the actor's rows are taken
+    per environment action, so a pi^N + Stop checkpoint starts a pi^Q (no Stop) with its move logits,
+    and a STOP row the source lacks keeps ``net``'s own initialisation."""
+    ours, theirs = replace(net.config, stop=False), replace(source.config, stop=False)
+    if ours != theirs:
+        changed = [f.name for f in fields(PolicyConfig) if getattr(ours, f.name) != getattr(theirs, f.name)]
+        raise ConfigError(f"cannot warm-start from {source.path}: its {', '.join(changed)} differ from this policy's")
+    state = {k: v for k, v in source.net.state_dict().items() if not k.startswith("actor.")}
+    source_rows = {int(a): i for i, a in enumerate(source.config.env_actions())}
+    with torch.no_grad():
+        net.load_state_dict(state, strict=False)
+        for row, action in enumerate(net.config.env_actions()):
+            if int(action) in source_rows:
+                net.actor.weight[row] = source.net.actor.weight[source_rows[int(action)]]
+                net.actor.bias[row] = source.net.actor.bias[source_rows[int(action)]]

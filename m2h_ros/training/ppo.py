@@ -28,6 +28,8 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
    value_coef - entropy x entropy_coef; Adam, gradient norm clipped; lr and clip decay linearly.
    With ``teacher_coef`` > 0 (kickstarting, ``training.teacher``) the loss adds that weight, decaying
    with lr, x the cross-entropy from the approach teacher's action distribution at each visited state.
+   ``init_policy`` starts the weights from a checkpoint instead of at random (``models.policy.warm_start``:
+   e.g. pi^Q from pi^N, whose actor rows are matched by action; the optimiser starts fresh).
 5. f^R (``train_refiner``, default for ``quality`` only): ``refiner_epochs`` passes of L1 between
    f^R(f^M estimate, stored memory) and the ground-truth magnitude, Adam ``refiner_lr`` (the
    original's lr_sep 5e-4), as the original's ``update_sep`` (ppo_epoch passes: 4); f^R's BatchNorm keeps its pretrained
@@ -82,7 +84,7 @@ from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.device import DEVICES, check_device, training_device
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import (PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_input_buffers,  # noqa: E402
-                                   policy_inputs, save_policy, sliced_policy_inputs)
+                                   load_policy, policy_inputs, save_policy, sliced_policy_inputs, warm_start)
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
@@ -144,6 +146,7 @@ class PPOConfig:
     quality_reward: str = "nmse"  # quality: the measure whose improvement is the reward (QUALITY_REWARDS)
     final_weight: float = 10.0  # quality: + weight x the measure at the last step (-weight x NMSE for nmse)
     teacher_coef: float = 0.0  # kickstarting: weight of the approach teacher's cross-entropy (decays with lr); 0: none
+    init_policy: str = ""  # policy checkpoint whose weights the run starts from (models.policy.warm_start); "": random
     seed: int = 0
     threads: int = 2  # torch intra-op threads and env render threads
     checkpoint_every: int = 25  # updates
@@ -348,6 +351,8 @@ class PPOTrainer:
         torch.manual_seed(config.seed)
         self.policy_config = config.policy_config()
         self.net = PolicyNet(self.policy_config).to(self.device)
+        if config.init_policy:
+            warm_start(self.net, load_policy(config.init_policy, map_location=self.device))
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=config.lr, eps=config.adam_eps)
         self.loaded = load_separator(config.separator or DEFAULT_SEPARATOR_CHECKPOINT, map_location=self.device)
         self.policy_config.check_stft(self.loaded.stft)
@@ -798,6 +803,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--teacher-coef", type=float, default=PPOConfig.teacher_coef,
                         help="kickstart with the approach teacher (m2h_ros/training/teacher.py): weight of its "
                              "cross-entropy, decaying with lr (0: plain PPO)")
+    parser.add_argument("--init-policy", default="",
+                        help="start from this policy checkpoint's weights (e.g. pi^Q from the shipped pi^N: "
+                             "everything but the Stop logit), not random ones")
     parser.add_argument("--entropy-coef", type=float, default=None,
                         help="entropy coefficient (default: the kind's, the seed's 0.01 for quality, 0.2 otherwise)")
     parser.add_argument("--seed", type=int, default=0)
@@ -818,7 +826,7 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
-                     final_weight=args.final_weight, lr=args.lr, teacher_coef=args.teacher_coef,
+                     final_weight=args.final_weight, lr=args.lr, teacher_coef=args.teacher_coef, init_policy=args.init_policy,
                      entropy_coef=args.entropy_coef, seed=args.seed,
                      threads=args.threads, checkpoint_every=args.checkpoint_every, device=args.device)
 

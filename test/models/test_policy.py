@@ -9,7 +9,7 @@ from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.models.checkpoint import save_separator
 from m2h_ros.core.audio.stft import to_slices
 from m2h_ros.models.policy import (PolicyConfig, PolicyInputs, PolicyNet, area_downsample, load_policy,
-                                   policy_input_buffers, policy_inputs, save_policy, sliced_policy_inputs)
+                                   policy_input_buffers, policy_inputs, save_policy, sliced_policy_inputs, warm_start)
 from m2h_ros.models.separator import Separator, SeparatorConfig
 
 SMALL = PolicyConfig(hidden=16, channels=(4, 8, 4), image_size=40)
@@ -141,6 +141,32 @@ def test_checkpoint_round_trip_and_errors(tmp_path):
         load_policy(separator)
     with pytest.raises(CheckpointError, match="not found"):
         load_policy(tmp_path / "none.pt")
+
+
+def test_warm_start_copies_everything_and_matches_actor_rows_by_action(tmp_path):
+    torch.manual_seed(4)
+    navigation = PolicyNet(PolicyConfig(**{**SMALL.to_dict(), "stop": True})).eval()
+    with torch.no_grad():
+        navigation.actor.weight.normal_()  # rows distinguishable (the orthogonal init's gain is 0.01)
+        navigation.actor.bias.normal_()
+    source = load_policy(save_policy(tmp_path / "n.pt", navigation, policy_kind="navigation"))
+    quality = PolicyNet(SMALL)
+    warm_start(quality, source)
+    inputs, starts = random_inputs(SMALL, 3), torch.ones(3, dtype=torch.bool)
+    with torch.no_grad():
+        ours = quality.eval().step(inputs, quality.initial_hidden(3), starts)
+        theirs = navigation.step(inputs, navigation.initial_hidden(3), starts)
+    # pi^N's outputs are STOP, FORWARD, LEFT, RIGHT; pi^Q's FORWARD, LEFT, RIGHT
+    torch.testing.assert_close(ours.logits, theirs.logits[:, 1:])
+    torch.testing.assert_close(ours.value, theirs.value)
+    # the other way round the STOP row keeps its own initialisation
+    back = PolicyNet(navigation.config)
+    own_stop = back.actor.weight[0].detach().clone()
+    warm_start(back, load_policy(save_policy(tmp_path / "q.pt", quality, policy_kind="quality")))
+    torch.testing.assert_close(back.actor.weight[0], own_stop)
+    torch.testing.assert_close(back.actor.weight[1:], quality.actor.weight)
+    with pytest.raises(ConfigError, match="hidden differ"):
+        warm_start(PolicyNet(PolicyConfig(**{**SMALL.to_dict(), "hidden": 8})), source)
 
 
 @pytest.mark.parametrize("kind", ["quality", "navigation", "novelty", "av_navigator"])

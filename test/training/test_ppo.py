@@ -52,6 +52,9 @@ def test_the_command_line_sets_the_final_weight_and_learning_rate():
     run = config_from_args(parser.parse_args(["--kind", "quality", "--quality-reward", "si_sdr", "--final-weight", "0",
                                               "--lr", "3e-4"]))
     assert run.final_weight == 0.0 and run.lr == 3e-4 and run.quality_reward == "si_sdr"
+    assert default.init_policy == "" and config_from_args(parser.parse_args(
+        ["--kind", "quality", "--init-policy", "m2h_ros/models/default/policy_navigation.pt"])).init_policy.endswith(
+        "policy_navigation.pt")
     with pytest.raises(ConfigError, match="final_weight"):
         config_from_args(parser.parse_args(["--kind", "quality", "--final-weight", "-1"]))
     with pytest.raises(ConfigError, match="lr"):
@@ -178,6 +181,11 @@ def test_training_writes_checkpoints_and_resumes_exactly(fast_env, separator_pat
     initial = PPOTrainer(config, folder_library, out_dir=tmp_path / "unused", progress=False)
     initial.env.close()
     assert any(not torch.equal(t, initial.net.state_dict()[n]) for n, t in whole.net.state_dict().items())
+    warm = PPOTrainer(dataclasses.replace(config, init_policy=str(whole.checkpoint)), folder_library,
+                      out_dir=tmp_path / "warm", progress=False)
+    warm.env.close()
+    for name, tensor in whole.net.state_dict().items():
+        torch.testing.assert_close(warm.net.state_dict()[name], tensor, rtol=0, atol=0, msg=name)
     loaded = load_policy(whole.checkpoint, policy_kind="quality")
     for name, tensor in whole.net.state_dict().items():
         torch.testing.assert_close(loaded.net.state_dict()[name], tensor)
