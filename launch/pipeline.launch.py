@@ -25,7 +25,7 @@ def generate_launch_description():
     arguments = [
         DeclareLaunchArgument("episodes", default_value="3", description="episodes to play"),
         DeclareLaunchArgument("task", default_value="near_target", description="near_target | far_target"),
-        DeclareLaunchArgument("controller", default_value="doa", description="controller_node policy"),
+        DeclareLaunchArgument("controller", default_value="move2hear", description="controller_node policy"),
         DeclareLaunchArgument("output", default_value="runs/launch", description="run directory"),
     ]
     output = LaunchConfiguration("output")

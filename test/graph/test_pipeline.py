@@ -69,8 +69,9 @@ def test_bag_holds_every_topic_with_contiguous_steps(tiny_run, small_library):
     assert len(messages["/scores/episode"]) == 2
 
 
-def test_scores_equal_the_in_process_run(tiny_run, small_library, small_data_dir, monkeypatch):
-    """Same episodes, controller and seed in-process: same actions, same per-step scores."""
+def assert_equals_in_process(out: Path, sim: dict, controller: str, seed: int, library) -> None:
+    """The graph run in ``out`` against the same episodes, controller and seed in-process: same actions,
+    same per-step scores (run with M2H_DATA_DIR at the graph run's data dir)."""
     import torch
 
     from m2h_ros.agents.registry import make_controller
@@ -78,16 +79,15 @@ def test_scores_equal_the_in_process_run(tiny_run, small_library, small_data_dir
     from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
     from m2h_ros.models.runner import SeparatorRunner
 
-    out, _ = tiny_run
-    monkeypatch.setenv("M2H_DATA_DIR", str(small_data_dir))
     torch.set_num_threads(1)
-    config = SimConfig(**TINY_SIM, num_episodes=2)
-    episodes = sim_world.sim_episodes(config, small_library)
+    config = SimConfig(**sim)
+    episodes = sim_world.sim_episodes(config, library)
     loaded = load_separator(DEFAULT_SEPARATOR_CHECKPOINT)
-    in_process = evaluate_controller(make_controller(CONTROLLER, 2, seed=7), SeparatorRunner(loaded, 2), episodes,
-                                     small_library, env_config=sim_world.env_config(config), progress=False)
+    n = len(episodes)
+    in_process = evaluate_controller(make_controller(controller, n, seed=seed), SeparatorRunner(loaded, n), episodes,
+                                     library, env_config=sim_world.env_config(config), progress=False)
     graph = {r.episode_id: r for r in read_results(out / "scores" / "results.json")}
-    assert len(graph) == 2
+    assert len(graph) == n
     for local in in_process:
         remote = graph[local.episode_id]
         assert remote.actions == local.actions
@@ -96,6 +96,28 @@ def test_scores_equal_the_in_process_run(tiny_run, small_library, small_data_dir
         np.testing.assert_allclose(remote.stft_distance, local.stft_distance, rtol=1e-4)
         assert remote.path_length == pytest.approx(local.path_length)
         assert remote.shortest_path == pytest.approx(local.shortest_path)
+
+
+def test_scores_equal_the_in_process_run(tiny_run, small_library, small_data_dir, monkeypatch):
+    """Same episodes, controller and seed in-process: same actions, same per-step scores."""
+    out, _ = tiny_run
+    monkeypatch.setenv("M2H_DATA_DIR", str(small_data_dir))
+    assert_equals_in_process(out, {**TINY_SIM, "num_episodes": 2}, CONTROLLER, 7, small_library)
+
+
+def test_the_default_controller_is_move2hear_and_acts_as_in_process(small_library, small_data_dir, tmp_path,
+                                                                    monkeypatch):
+    """The main job's controller (the params file's default): the shipped pi^Q reads the camera and the
+    separator's three estimates through the graph and chooses what it chooses in-process."""
+    from m2h_ros.node_configs import ControllerConfig
+
+    assert ControllerConfig().policy == "move2hear"
+    sim = {**TINY_SIM, "camera_size": 64, "num_episodes": 1}  # the compact policy's RGB size
+    result = run_pipeline(tmp_path, small_data_dir, "--episodes", "1", *tiny_sets(camera_size=64))
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "| move2hear | near_target | unheard | 1 |" in result.stdout
+    monkeypatch.setenv("M2H_DATA_DIR", str(small_data_dir))
+    assert_equals_in_process(tmp_path, sim, "move2hear", 0, small_library)
 
 
 def start_graph(processes, data_dir, tmp_path, *, sim: dict, evaluator: bool = True):
