@@ -2,7 +2,7 @@
 """Evaluate controllers in-process (no ROS) on the test episodes of a task and sound split(s).
 
     python scripts/evaluate.py [--controllers stand_in_place,random,...] [--task near_target]
-        [--sound-split heard,unheard] [--count 1000] [--first 0] [--slots 16] [--seed 0]
+        [--sound-split heard,unheard] [--scene-split test] [--count 1000] [--first 0] [--slots 16] [--seed 0]
         [--mic-noise 0] [--checkpoint m2h_ros/models/default/separator_compact.pt]
         [--out out/evaluate] [--threads 2] [--reference stand_in_place] [--list]
 
@@ -12,6 +12,7 @@ same functions as the evaluator node. Prints the paper-style table (final-step S
 ground-truth-phase and mixture-phase variants, STFT distance: mean ± 95% CI; SR and SPL for
 far-target), each controller's final-step SI-SDR minus ``--reference``'s on the same episodes
 (paired: mean ± 95% CI), and writes results.md / .csv / .json and si_sdr_vs_step.png into ``--out``.
+``--scene-split val`` plays the validation episodes instead: choose models and settings there, report on test.
 """
 
 from __future__ import annotations
@@ -62,6 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "one with ':greedy' takes the most likely action instead of sampling")
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", default="unheard", help="heard, unheard or both comma-separated")
+    parser.add_argument("--scene-split", default="test", choices=("val", "test"),
+                        help="val: the validation scenes' episodes (for choosing models), test: the reported ones")
     parser.add_argument("--count", type=int, default=1000, help="episodes per sound split")
     parser.add_argument("--first", type=int, default=0, help="index of the first test episode")
     parser.add_argument("--slots", type=int, default=16, help="episodes played at once")
@@ -83,12 +86,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def select_episodes(task: str, split: str, *, first: int, count: int, library: SoundLibrary) -> list[Episode]:
-    """Episodes first .. first + count - 1 of the standard test-episode file of a task x sound split."""
-    episodes = episodes_for(EpisodeConfig(task=task, scene_split="test", sound_split=split), library)
+def select_episodes(task: str, split: str, *, first: int, count: int, library: SoundLibrary,
+                    scene_split: str = "test") -> list[Episode]:
+    """Episodes first .. first + count - 1 of the standard episode file of a task x sound split
+    (``scene_split`` test or val)."""
+    episodes = episodes_for(EpisodeConfig(task=task, scene_split=scene_split, sound_split=split), library)
     if first < 0 or count < 1 or first + count > len(episodes):
         raise ConfigError(f"--first {first} --count {count} selects outside the {len(episodes)} "
-                          f"{task} {split} test episodes")
+                          f"{task} {split} {scene_split} episodes")
     return episodes[first:first + count]
 
 
@@ -127,14 +132,14 @@ def main(argv: list[str] | None = None) -> int:
         loaded = load_separator(args.checkpoint)
         torch.set_num_threads(args.threads)
         library = SoundLibrary.load()
-        episodes = [e for split in splits for e in select_episodes(args.task, split, first=args.first,
-                                                                     count=args.count, library=library)]
+        episodes = [e for split in splits for e in select_episodes(args.task, split, first=args.first, count=args.count,
+                                                                     library=library, scene_split=args.scene_split)]
         env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
                                mic_noise=args.mic_noise)
         results = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
         meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
                 "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",
-                "task": args.task,
+                "task": args.task, "scene_split": args.scene_split,
                 "sound_splits": splits, "first": args.first, "count_per_split": args.count,
                 "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
                 "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
@@ -144,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         meta["acoustics"] = f"v{acoustics.VERSION} {env_config.acoustics.digest()}"
         setup = (f"separator `{Path(loaded.path).name}` (sha256 {meta['separator_sha256']}), "
                  f"acoustics {meta['acoustics']}")
-        paths = write_results(results, args.out, title=f"{args.task} test episodes, {' + '.join(splits)} sounds",
+        paths = write_results(results, args.out, title=f"{args.task} {args.scene_split} episodes, {' + '.join(splits)} sounds",
                               meta=meta, command=command, setup=setup, reference=reference)
     except M2HError as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)

@@ -9,6 +9,7 @@ import pytest
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES, GREEDY, TRAINING_FREE
 from m2h_ros.core.results import write_results
+from m2h_ros.errors import ConfigError
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "evaluate.py"
 
@@ -63,3 +64,12 @@ def test_every_controller_end_to_end_on_tiny_episodes(evaluate, small_episodes, 
     assert paths["plot"].stat().st_size > 0
     stand = [r for r in results if r.controller == "stand_in_place"]
     assert all(r.path_length == 0 for r in stand)
+
+
+def test_episodes_come_from_the_chosen_scene_split(evaluate, folder_library):
+    val = evaluate.select_episodes("near_target", "unheard", first=0, count=3, library=folder_library, scene_split="val")
+    test = evaluate.select_episodes("near_target", "unheard", first=0, count=3, library=folder_library)
+    assert all(e.scene_id.startswith("val_") for e in val) and all(e.scene_id.startswith("test_") for e in test)
+    with pytest.raises(ConfigError, match="near_target unheard val episodes"):
+        evaluate.select_episodes("near_target", "unheard", first=0, count=10**6, library=folder_library,
+                                 scene_split="val")
