@@ -595,7 +595,9 @@ class BatchEnv:
                 mixture += target
             else:
                 mixture += found[j] * self._clip_spectra[slot, j]
-        mixture *= self._source_weight[slot]
+        # Scaled through a float32 view: the same products (the imaginary part of w + 0j adds exact
+        # zeros) without numpy's cast of the scalar to complex, 4x slower for these rows.
+        mixture.view(np.float32)[:] *= self._source_weight[slot]
         return sfft.irfft(both, self._n_fft, axis=-1, overwrite_x=True)[:, :self.n_samples]
 
 
