@@ -66,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scene-split", default="test", choices=("val", "test"),
                         help="val: the validation scenes' episodes (for choosing models), test: the reported ones")
     parser.add_argument("--count", type=int, default=1000, help="episodes per sound split")
-    parser.add_argument("--first", type=int, default=0, help="index of the first test episode")
+    parser.add_argument("--first", type=int, default=0, help="index of the first episode of the split")
     parser.add_argument("--slots", type=int, default=16, help="episodes played at once")
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
     parser.add_argument("--mic-noise", type=float, default=0.0, help="microphone noise std / mixture RMS")

@@ -387,7 +387,6 @@ def load_policy(path: str | os.PathLike, *, policy_kind: str | None = None,
     return LoadedPolicy(net, config, payload["policy_kind"], stft_config, path, payload["metadata"])
 
 
-
 def warm_start(net: PolicyNet, source: LoadedPolicy) -> None:
     """Copy ``source``'s weights into ``net`` (training starts from them, not from random ones).
 
