@@ -210,7 +210,9 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
     paths = {"markdown": out / "results.md", "csv": out / "results.csv", "json": out / "results.json"}
     note = ("Final-step scores, mean ± 95% CI over episodes. SI-SDR (GT phase): the estimate rebuilt "
             "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
-            "(mixture phase): rebuilt with the mixture's phase (deployable).\n")
+            "(mixture phase): rebuilt with the mixture's phase (deployable); STFT distance: the original "
+            "code's, the estimate with the target's phase vs the target's spectrogram, mean squared "
+            "real/imaginary difference (tables without this sentence used a Frobenius norm).\n")
     how = (f"Command: `{command}`\n\n" if command else "") + (f"Setup: {setup}\n\n" if setup else "")
     paired = paired_differences(results, reference=reference, by=by) if reference else []
     versus = (f"\nFinal-step SI-SDR (dB, GT phase) minus {reference}'s on the same episodes:\n\n"

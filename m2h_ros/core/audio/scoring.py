@@ -14,8 +14,10 @@ An estimate is a monaural magnitude (..., F, T). It is rebuilt into a waveform t
   the room. Against the target as heard, the mixture itself is the floor (its distractor is the
   error) and the target alone would be perfect: the number measures what separation removes.
 
-``stft_distance`` is the Euclidean distance between the complex spectrogram of the ground-truth-phase
-rebuild and the dry target's (the paper's STFT distance).
+``stft_distance`` is the original code's: the estimated magnitude with the dry target's phase against
+the dry target's complex spectrogram, mean squared over real and imaginary parts
+(:func:`~m2h_ros.core.audio.metrics.stft_distance`). Until session 11 it was the Frobenius norm of
+the STFT of the ground-truth-phase rebuild minus the target's; tables and bags from before say so.
 """
 
 from __future__ import annotations
@@ -73,4 +75,4 @@ def score_magnitude(magnitude: np.ndarray, mixture: np.ndarray, truth: StepTruth
     return StepScores(
         si_sdr=np.asarray(si_sdr(gt_phase, target)),
         si_sdr_mixture_phase=np.asarray(si_sdr(mixture_phase, deployable_reference(truth))),
-        stft_distance=np.asarray(stft_distance(stft(gt_phase, config=config), target_spec)))
+        stft_distance=np.asarray(stft_distance(magnitude, target_spec)))

@@ -77,21 +77,29 @@ def test_si_sdr_errors() -> None:
         si_sdr(np.ones(10), np.ones(11))
 
 
-def test_stft_distance_is_frobenius_norm() -> None:
+def test_stft_distance_is_the_original_codes_mean_squared_real_imaginary_difference() -> None:
     rng = np.random.default_rng(4)
-    a = stft(rng.standard_normal((2, 16000)).astype(np.float32))
-    b = stft(rng.standard_normal((2, 16000)).astype(np.float32))
-    distance = stft_distance(a, b)
+    estimate = np.abs(stft(rng.standard_normal((2, 16000)).astype(np.float32)))
+    reference = stft(rng.standard_normal((2, 16000)).astype(np.float32))
+    distance = stft_distance(estimate, reference)
     assert distance.shape == (2,)
-    expected = [np.linalg.norm((a[i] - b[i]).astype(np.complex128), "fro") for i in range(2)]
-    np.testing.assert_allclose(distance, expected, rtol=1e-6)
-    assert stft_distance(a[0], a[0]) == 0.0
-    # it is not scale invariant: the paper's plain L2 distance
-    assert stft_distance(2 * a[0], 2 * b[0]) == pytest.approx(2 * distance[0])
+    # The original's STFT_L2_distance, written out: the estimate takes the reference's phase, real and
+    # imaginary parts are stacked, and the squared differences are averaged.
+    phase = np.angle(reference.astype(np.complex128))
+    gt = np.abs(reference.astype(np.complex128))
+    pred = estimate.astype(np.float64)
+    stacked = [np.stack([g * np.cos(p) - e * np.cos(p), g * np.sin(p) - e * np.sin(p)])
+               for g, e, p in zip(gt, pred, phase)]
+    np.testing.assert_allclose(distance, [np.mean(d**2) for d in stacked], rtol=1e-6)
+    assert stft_distance(np.abs(reference[0]), reference[0]) == 0.0
+    # not scale invariant: doubling both quadruples it
+    assert stft_distance(2 * estimate[0], 2 * reference[0]) == pytest.approx(4 * distance[0])
     with pytest.raises(AudioError, match="NaN"):
-        stft_distance(a[0] * np.nan, b[0])
+        stft_distance(estimate[0] * np.nan, reference[0])
     with pytest.raises(AudioError, match="shapes"):
-        stft_distance(a[0], b)
+        stft_distance(estimate[0], reference)
+    with pytest.raises(AudioError, match="magnitude"):
+        stft_distance(reference[0], reference[0])
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.complex64, np.complex128])
