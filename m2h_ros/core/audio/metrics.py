@@ -52,15 +52,23 @@ def si_sdr(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray | float:
     ref = _finite(reference, "SI-SDR reference").astype(np.float64)
     if est.shape != ref.shape or est.ndim < 1:
         raise AudioError(f"SI-SDR needs equal shapes (..., N), got {est.shape} and {ref.shape}")
-    est = est - est.mean(axis=-1, keepdims=True)
-    ref = ref - ref.mean(axis=-1, keepdims=True)
-    ref_energy = np.sum(ref * ref, axis=-1, keepdims=True)
+    # In place on the float64 copies, products into one scratch array: the same numbers as the plain
+    # expressions (numpy's pairwise sums, row by row, so batching changes nothing) at half the memory
+    # traffic.
+    est -= est.mean(axis=-1, keepdims=True)
+    ref -= ref.mean(axis=-1, keepdims=True)
+    scratch = np.empty_like(ref)
+
+    def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.multiply(a, b, out=scratch).sum(axis=-1, keepdims=True)
+
+    ref_energy = dot(ref, ref)
     if np.any(ref_energy <= SILENT_ENERGY_PER_SAMPLE * ref.shape[-1]):
         raise AudioError("SI-SDR reference is silent (zero-mean energy ~0): the ratio is undefined")
-    target = np.sum(est * ref, axis=-1, keepdims=True) / ref_energy * ref
-    noise = est - target
+    target = dot(est, ref) / ref_energy * ref
+    noise = np.subtract(est, target, out=est)
     eps = np.finfo(np.float64).eps
-    ratio = (np.sum(target * target, axis=-1) + eps) / (np.sum(noise * noise, axis=-1) + eps)
+    ratio = (dot(target, target)[..., 0] + eps) / (dot(noise, noise)[..., 0] + eps)
     result = 10.0 * np.log10(ratio)
     return float(result) if result.ndim == 0 else result
 

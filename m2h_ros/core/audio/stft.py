@@ -176,7 +176,8 @@ def istft(spec: np.ndarray, *, config: StftConfig = DEFAULT_STFT, length: int | 
     real_dtype = np.float32 if spec.dtype == np.complex64 else np.float64
     window = _cached_window(config, np.dtype(real_dtype))
     n_frames, hop, n_fft = spec.shape[-1], config.hop_length, config.n_fft
-    frames = scipy.fft.irfft(np.swapaxes(spec, -1, -2), n=n_fft, axis=-1) * window  # (..., T, n_fft)
+    frames = scipy.fft.irfft(np.swapaxes(spec, -1, -2), n=n_fft, axis=-1)  # (..., T, n_fft)
+    frames *= window
     # Overlap-add chunk by chunk: each frame is cut into ceil(n_fft / hop) hop-long pieces (the last
     # one shorter), and piece j of frame t lands at (t + j) * hop, so one vectorised add per piece
     # index does the whole job.
@@ -193,10 +194,13 @@ def istft(spec: np.ndarray, *, config: StftConfig = DEFAULT_STFT, length: int | 
     out, envelope = out[..., start:stop], _ola_envelope(config, n_frames, np.dtype(real_dtype))[start:stop]
     if np.any(envelope < 1e-11):
         raise AudioError("istft window overlap-add envelope has zeros (settings break NOLA)")
-    out = (out / envelope).astype(real_dtype)
-    if length is not None and out.shape[-1] < length:
-        out = np.pad(out, [(0, 0)] * (out.ndim - 1) + [(0, length - out.shape[-1])])
-    return out
+    # Divided in float64 (the envelope's type) and rounded into real_dtype on the way out, without a
+    # float64 copy of the whole batch.
+    result = np.empty(out.shape, real_dtype)
+    np.divide(out, envelope, out=result, casting="same_kind")
+    if length is not None and result.shape[-1] < length:
+        result = np.pad(result, [(0, 0)] * (result.ndim - 1) + [(0, length - result.shape[-1])])
+    return result
 
 
 def log_magnitude(spec: np.ndarray) -> np.ndarray:
