@@ -109,6 +109,13 @@ class Comparison:
             self.mismatches.append(Mismatch(episode_id, step, metric, live, replayed))
 
 
+def _only_stft_distance_differs(comparison: Comparison) -> bool:
+    """Every step's STFT distance differs from the live one and nothing else does."""
+    step_stft = sum(m.metric == "stft_distance" and m.step is not None for m in comparison.mismatches)
+    others = any("stft_distance" not in m.metric for m in comparison.mismatches)
+    return step_stft == comparison.steps and not others
+
+
 @dataclass
 class BagReplay:
     bag: Path
@@ -249,6 +256,10 @@ class _Replayer:
         c = self.comparison
         c.live_only += len(self.live_steps) + len(self.live_episodes)
         c.replayed_only += len(self.replayed_steps) + len(self.replayed_episodes)
+        if c.steps and _only_stft_distance_differs(c):
+            self.notes.append("every live STFT distance differs while every SI-SDR agrees: the bag was most likely "
+                              "recorded before the STFT distance became the original code's (session 11; it was a "
+                              "Frobenius norm, docs/separator.md)")
         return BagReplay(self.bag, self.results, c, self.problems, self.notes, self.stream.stats,
                          self.steps_scored)
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from m2h_ros import topics
-from m2h_ros.core.audio.scoring import StepTruth, score_magnitude
+from m2h_ros.core.audio.scoring import StepScores, StepTruth, score_magnitude
 from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
 from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
@@ -96,10 +96,10 @@ def _pose_msgs(stamp: int, episode_id: str, step: int, xy: np.ndarray, heading: 
 
 
 def write_synthetic_run(path: str | Path, run: SyntheticRun = SyntheticRun(), *,
-                        live_score: Callable[[str, int, float], float] | None = None,
+                        live_score: Callable[[str, int, StepScores], StepScores] | None = None,
                         writer: BagWriter | None = None) -> list[EpisodeResult]:
     """Write ``run`` as a bag at ``path`` (or into an open ``writer``); returns the live results.
-    ``live_score(episode_id, step, si_sdr)`` may alter the SI-SDR the live evaluator records."""
+    ``live_score(episode_id, step, scores)`` may alter the scores the live evaluator records."""
     t = _types()
     own = writer is None
     writer = writer or BagWriter(path)
@@ -200,11 +200,12 @@ def _episode(run: SyntheticRun, index: int, put, clock, live_score, t) -> Episod
                 controller=run.controller))
         truth = StepTruth(target_monaural=target, target_binaural=target_binaural)
         scores = score_magnitude(refined, mixture, truth)
-        si = float(scores.si_sdr) if live_score is None else live_score(episode_id, step, float(scores.si_sdr))
-        tracker.observe(step, si_sdr=si, si_sdr_mixture_phase=float(scores.si_sdr_mixture_phase),
+        if live_score is not None:
+            scores = live_score(episode_id, step, scores)
+        tracker.observe(step, si_sdr=float(scores.si_sdr), si_sdr_mixture_phase=float(scores.si_sdr_mixture_phase),
                         stft_distance=float(scores.stft_distance), position=xy, at_target=at_target)
         put(topics.STEP_SCORE, t["m2h_msgs/msg/StepScore"](
-            header=_header(stamp, "head"), episode_id=episode_id, step=step, si_sdr=si,
+            header=_header(stamp, "head"), episode_id=episode_id, step=step, si_sdr=float(scores.si_sdr),
             si_sdr_mixture_phase=float(scores.si_sdr_mixture_phase), stft_distance=float(scores.stft_distance),
             geodesic_distance=geodesic))
         if step < last:

@@ -2,6 +2,7 @@
 damaged bags are read up to their last complete chunk, foreign bags are named, rosbag2-written bags
 score the same as ours."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -78,8 +79,9 @@ def test_far_target_stop_success_and_spl(tmp_path):
 
 
 def test_a_differing_live_score_is_reported(tmp_path):
-    def tamper(episode_id, step, si_sdr):
-        return si_sdr + 0.01 if (episode_id.endswith("000001") and step == 2) else si_sdr
+    def tamper(episode_id, step, scores):
+        changed = episode_id.endswith("000001") and step == 2
+        return dataclasses.replace(scores, si_sdr=scores.si_sdr + 0.01) if changed else scores
 
     write_synthetic_run(tmp_path / "bag", NEAR, live_score=tamper)
     replay = replay_bag(tmp_path / "bag")
@@ -90,6 +92,20 @@ def test_a_differing_live_score_is_reported(tmp_path):
     assert mismatch.live - mismatch.replayed == pytest.approx(0.01)
     assert not replay.ok
     assert replay_bag(tmp_path / "bag", config=ReplayConfig(atol=0.02)).ok
+
+
+def test_a_bag_with_the_old_stft_distance_gets_a_note(tmp_path):
+    def frobenius_era(episode_id, step, scores):   # what the evaluator recorded before session 11
+        return dataclasses.replace(scores, stft_distance=scores.stft_distance * 1000.0)
+
+    write_synthetic_run(tmp_path / "bag", NEAR, live_score=frobenius_era)
+    replay = replay_bag(tmp_path / "bag")
+    assert {m.metric for m in replay.comparison.mismatches} == {"stft_distance", "episode_stft_distance"}
+    assert any("recorded before the STFT distance became the original code's" in note for note in replay.notes)
+    # one differing step is not the old definition: no note
+    write_synthetic_run(tmp_path / "one", NEAR, live_score=lambda e, step, scores: frobenius_era(e, step, scores)
+                        if step == 1 and e.endswith("000001") else scores)
+    assert not any("STFT distance" in note for note in replay_bag(tmp_path / "one").notes)
 
 
 def killed_copy(bag: Path, target: Path, fraction: float) -> Path:
