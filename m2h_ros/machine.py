@@ -51,3 +51,10 @@ def availability_line() -> str:
     return (f"cores available to two processes: {cores_available():.2f} of {os.cpu_count()} (load average "
             f"{os.getloadavg()[0]:.1f}; autogroup scheduling {'on' if autogroup_scheduling() else 'off'}"
             f"{': start benches with setsid, other sessions share the cores first' if autogroup_scheduling() else ''})")
+
+
+def process_cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a running process so far (Linux ``/proc``): a benchmark adds its
+    helper processes' CPU to its own this way."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")

@@ -2,13 +2,15 @@
 
     python scripts/bench/sim.py [--steps 200] [--threads 2] [--episodes 1000] [--build-workers 2]
                                 [--repeats 3] [--rir-length 0.5] [--rir-spectra-mib 0] [--fresh-build]
-                                [--stored-rir-spectra]
+                                [--stored-rir-spectra] [--render-processes 1]
 
 Uses the test split's default scenes and the default acoustics; builds (or reuses) their RIR banks
 under data_dir() first and reports their size per scene (and the build time of what was missing);
 --fresh-build also times a full build of every scene into a temporary cache with
 scripts/bench/acoustics.py; --stored-rir-spectra runs every case with ``BatchEnv(stored_rir_spectra=True)``
-(building the spectrum files first and reporting their size). Sound library: the full default
+(building the spectrum files first and reporting their size); --render-processes N gives the
+throughput cases' BatchEnv N render processes (their CPU is added to the CPU figures; the page
+faults are this process's). Sound library: the full default
 one if it is built, else the --small one (built if missing); the output says which. Each throughput
 case runs --repeats times, each in a fresh process with warm caches, and reports its peak RSS, its
 minor page faults per env step, the MiB it read from disk (files the page cache had dropped) and the
@@ -46,7 +48,7 @@ from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.rir_spectra import StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import load_split
 from m2h_ros.errors import CacheError
-from m2h_ros.machine import availability_line
+from m2h_ros.machine import availability_line, process_cpu_seconds
 
 SPLIT = "test"
 
@@ -102,24 +104,27 @@ def fresh_builds(workers: int) -> None:
             os.environ["M2H_DATA_DIR"] = saved
 
 
-def throughput(n_envs: int, camera: bool, steps: int, threads: int, pose_cache: int, spectra_mib: float,
-               stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
-    """Runs in a fresh process: steps/s of one BatchEnv with warm caches, and the peak RSS."""
+def throughput(n_envs: int, camera: bool, steps: int, threads: int, render_processes: int, pose_cache: int,
+               spectra_mib: float, stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig,
+               queue) -> None:
+    """Runs in a fresh process: steps/s of one BatchEnv with warm caches, and the peak RSS (CPU: this
+    process and its render processes)."""
     library, _ = open_library()
     episodes = episodes_for(episode_config, library)
     env = BatchEnv(episodes, library, n_envs=n_envs, threads=threads, pose_cache=pose_cache,
-                   rir_spectra_mib=spectra_mib, stored_rir_spectra=stored_spectra,
+                   rir_spectra_mib=spectra_mib, stored_rir_spectra=stored_spectra, render_processes=render_processes,
                    config=EnvConfig(camera=camera, acoustics=acoustics))
     env.prepare(progress=False)
     env.reset()
     actions = np.random.default_rng(0).integers(4, size=(steps + 20, n_envs))
     for batch in actions[:20]:
         env.step(batch)
-    wall, cpu = time.perf_counter(), time.process_time()
+    helpers = env.render_process_ids
+    wall, cpu = time.perf_counter(), time.process_time() + sum(map(process_cpu_seconds, helpers))
     before = resource.getrusage(resource.RUSAGE_SELF)
     for batch in actions[20:]:
         env.step(batch)
-    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    wall, cpu = time.perf_counter() - wall, time.process_time() + sum(map(process_cpu_seconds, helpers)) - cpu
     usage = resource.getrusage(resource.RUSAGE_SELF)
     env.close()
     queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps), usage.ru_maxrss / 1024,
@@ -218,7 +223,8 @@ def in_process(target, *target_args):
 
 def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_config: EpisodeConfig) -> None:
     print(f"throughput ({args.steps} timed batch steps after 20 warm ones, uniformly random actions, "
-          f"threads={args.threads}, pose cache {args.pose_cache}/slot, RIR spectrum cache "
+          f"threads={args.threads}, render processes {args.render_processes}, pose cache {args.pose_cache}/slot, "
+          f"RIR spectrum cache "
           f"{args.rir_spectra_mib:g} MiB, stored RIR spectra {'on' if args.stored_rir_spectra else 'off'}, "
           f"RIR banks and views warm, {acoustics.rir_length} s RIRs):")
     rates = {}
@@ -228,9 +234,9 @@ def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_co
             for _ in range(args.repeats):
                 # Other jobs on the cores change these figures by tens of percent: say how busy it was.
                 load = os.getloadavg()[0]
-                runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads, args.pose_cache,
-                                         args.rir_spectra_mib, args.stored_rir_spectra, acoustics,
-                                         episode_config), load))
+                runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads,
+                                         args.render_processes, args.pose_cache, args.rir_spectra_mib,
+                                         args.stored_rir_spectra, acoustics, episode_config), load))
             rate, cpu_ms, rss, hit_rate, spectra_rate, faults, read_mib, load = zip(*runs)
             rates[n_envs, camera] = np.median(rate)
             print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: "
@@ -247,6 +253,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200, help="timed batch steps per case")
     parser.add_argument("--threads", type=int, default=2, help="BatchEnv threads")
+    parser.add_argument("--render-processes", type=int, default=0,
+                        help="BatchEnv render processes in the throughput cases (try 1 with --threads 1)")
     parser.add_argument("--episodes", type=int, default=1000, help="test episodes (throughput and sanity)")
     parser.add_argument("--pose-cache", type=int, default=32,
                         help="BatchEnv pose-cache entries per slot (0: render every step)")

@@ -45,12 +45,14 @@ from gymnasium import spaces
 from scipy import fft as sfft
 
 from m2h_ros.allocator import keep_freed_blocks
-from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, stft
+from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.camera import CameraConfig, CameraViews
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, Episode, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS, heading_angle
+from m2h_ros.core.world.render import log_magnitude_into, render_pose, source_spectra
+from m2h_ros.core.world.render_worker import RenderJob, RenderSetup, RenderWorkers
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.rir_spectra import RirSpectra, StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import Scene
@@ -119,12 +121,13 @@ class _PoseCache:
     """
 
     def __init__(self, capacity: int, n_samples: int, spectrogram_shape: tuple[int, int], *,
-                 spectrograms: bool) -> None:
+                 spectrograms: bool, arrays: tuple[np.ndarray, np.ndarray | None] | None = None) -> None:
         self.capacity = capacity
         self._shapes = ((capacity, 4, n_samples), (capacity, 2, *spectrogram_shape) if spectrograms else None)
         self._entries: OrderedDict[tuple[int, int], int] = OrderedDict()
-        self.renders: np.ndarray | None = None        # (capacity, 4, S): target alone, then mixture
-        self.spectrograms: np.ndarray | None = None   # (capacity, 2, F, T) log-magnitudes, or None
+        # (capacity, 4, S): target alone, then mixture; (capacity, 2, F, T) log-magnitudes, or None.
+        # ``arrays``: given ones (the render processes' shared map), else allocated on first use.
+        self.renders, self.spectrograms = arrays if arrays is not None else (None, None)
 
     def __contains__(self, key: tuple[int, int]) -> bool:
         return key in self._entries
@@ -139,6 +142,14 @@ class _PoseCache:
     def store(self, key: tuple[int, int], render: np.ndarray) -> int | None:
         """Keep ``render`` for a new pose, in the least recently used entry when full; its entry
         (where the caller puts the spectrogram), or None with capacity 0."""
+        entry = self.reserve(key)
+        if entry is not None:
+            self.renders[entry] = render
+        return entry
+
+    def reserve(self, key: tuple[int, int]) -> int | None:
+        """The entry a new pose's render goes to (the least recently used one when full), now
+        ``key``'s; None with capacity 0."""
         if not self.capacity:
             return None
         if self.renders is None:
@@ -147,7 +158,6 @@ class _PoseCache:
                 self.spectrograms = np.empty(self._shapes[1], np.float32)
         entry = len(self._entries) if len(self._entries) < self.capacity else self._entries.popitem(last=False)[1]
         self._entries[key] = entry
-        self.renders[entry] = render
         return entry
 
     def clear(self) -> None:
@@ -181,6 +191,9 @@ class BatchEnv:
     ``stored_rir_spectra`` (default False) instead reads every RIR spectrum from files stored next
     to the RIR bank (``StoredRirSpectra``: ~1 GiB of disk and page cache per 32-node scene, computed
     once): a fresh render skips the RIR gather and its FFT, ~25% of an env step's CPU.
+    ``render_processes`` (default 0) starts that many processes that render fresh poses beside the
+    stepping one, out of its interpreter lock (``render_worker``; on two cores, one of them with
+    ``threads=1`` and stored spectra steps 16 envs ~1.5x faster than two threads); ``close()`` ends them.
     ``prepare()`` fills the RIR banks and view caches. Constructing one sets glibc's malloc to keep
     freed memory for the whole process (``m2h_ros.allocator.keep_freed_blocks``: a few MiB freed and
     taken back every step otherwise cost page faults).
@@ -189,7 +202,8 @@ class BatchEnv:
     def __init__(self, episodes: Sequence[Episode], library: SoundLibrary, *, n_envs: int,
                  config: EnvConfig = EnvConfig(), rir_cache_dir: Path | None = None,
                  autoreset: bool = True, threads: int = 1, pose_cache: int = 32,
-                 rir_spectra_mib: float = 0.0, stored_rir_spectra: bool = False) -> None:
+                 rir_spectra_mib: float = 0.0, stored_rir_spectra: bool = False,
+                 render_processes: int = 0) -> None:
         if not isinstance(config, EnvConfig):
             raise ConfigError(f"config must be an EnvConfig, got {type(config).__name__}")
         if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
@@ -218,6 +232,9 @@ class BatchEnv:
         if stored_rir_spectra and rir_spectra_mib:
             raise ConfigError("stored_rir_spectra=True already holds every RIR spectrum: leave rir_spectra_mib at 0")
         self.stored_rir_spectra = stored_rir_spectra
+        if isinstance(render_processes, bool) or not isinstance(render_processes, (int, np.integer)) \
+                or render_processes < 0:
+            raise ConfigError(f"render_processes={render_processes!r} must be a non-negative int")
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
         keep_freed_blocks()   # process-wide: glibc keeps freed memory instead of re-faulting it
         self.n_samples = config.stft.clip_samples
@@ -238,8 +255,17 @@ class BatchEnv:
         self._rngs: list[np.random.Generator | None] = [None] * b
         # An episode shows at most max_steps + 1 poses: more entries would never be used.
         capacity = min(self.pose_cache, self.max_episode_steps + 1)
+        self._workers = None
+        if render_processes:
+            self._workers = RenderWorkers(RenderSetup(
+                n_envs=b, max_sources=k, n_fft=self._n_fft, n_samples=self.n_samples, stft=config.stft,
+                acoustics=config.acoustics, rir_cache_dir=rir_cache_dir, stored_rir_spectra=stored_rir_spectra,
+                rir_spectra_mib=float(rir_spectra_mib), pose_cache=capacity), int(render_processes))
+        shared = self._workers.shared if self._workers is not None else None
         self._pose_cache = [_PoseCache(capacity, self.n_samples, (config.stft.n_freq, config.stft.n_frames),
-                                       spectrograms=config.mic_noise == 0) for _ in range(b)]
+                                       spectrograms=config.mic_noise == 0,
+                                       arrays=None if shared is None else shared.pose_cache(slot))
+                            for slot in range(b)]
         self._renders = np.zeros((b, 2), np.int64)   # per slot: pose-cache hits, fresh renders
         self._started = np.zeros(b, np.int64)       # episodes each slot has started since reset(seed)
         self._episode_index = np.full(b, -1, np.int64)
@@ -249,7 +275,9 @@ class BatchEnv:
         self._sources = np.zeros((b, k), np.int64)
         self._n_sources = np.zeros(b, np.int64)
         self._source_weight = np.zeros(b, np.float32)  # 1 / number of sources
-        self._clip_spectra = np.zeros((b, k, self._n_fft // 2 + 1), np.complex64)
+        # Each slot's clips' spectra; in the render processes' shared map when there are any.
+        self._clip_spectra = (np.zeros((b, k, self._n_fft // 2 + 1), np.complex64) if self._workers is None
+                              else self._workers.shared.clip_spectra)
         self._target_mono = np.zeros((b, self.n_samples), np.float32)
 
     # ------------------------------------------------------------------ spaces
@@ -280,6 +308,11 @@ class BatchEnv:
         """Share of audio observations served from the pose cache since construction."""
         hits, fresh = self._renders.sum(axis=0)
         return float(hits / max(hits + fresh, 1))
+
+    @property
+    def render_process_ids(self) -> list[int]:
+        """Process ids of the render processes (``render_processes``), for benchmarks' CPU figures."""
+        return [] if self._workers is None else self._workers.process_ids
 
     @property
     def rir_spectra_hit_rate(self) -> float:
@@ -365,18 +398,24 @@ class BatchEnv:
     def prepare(self, *, workers: int = 1, progress: bool = True) -> None:
         """Build every RIR bank (and the stored RIR spectra, if used) and render every camera view of
         the episodes' scenes now (before timing, or before forking workers that would otherwise each
-        fill their own caches)."""
-        for key in sorted({_scene_key(e) for e in self.episodes}):
+        fill their own caches), and map the pages of the files the renders read into this process and
+        the render processes (no page faults inside steps)."""
+        keys = sorted({_scene_key(e) for e in self.episodes})
+        for key in keys:
             data = self._scene_data(key)
-            data.bank.build(workers=workers, progress=progress)
+            data.bank.build(workers=workers, progress=progress, populate_pages=data.spectra is None)
             if data.spectra is not None:
-                data.spectra.build()
+                data.spectra.build(populate_pages=True)
             if data.views is not None:
                 data.views.prerender()
+        if self._workers is not None:
+            self._workers.prepare(keys)
 
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown()
+        if self._workers is not None:
+            self._workers.close()
         self._scenes.clear()
         self._rir_spectra.clear()
 
@@ -425,7 +464,9 @@ class BatchEnv:
         """Start an episode in each slot (None: its next in order); the clips of all of them are
         transformed in one FFT (pocketfft does 1-2 rows at a time 2-3x slower per row)."""
         clips = [self._start(int(slot), episode) for slot, episode in zip(slots, episodes)]
-        spectra = sfft.rfft(np.concatenate(clips), self._n_fft, axis=-1, workers=self.threads)
+        # The render processes wait meanwhile: their cores take FFT threads (same numbers per row).
+        workers = self.threads + (0 if self._workers is None else len(self._workers.process_ids))
+        spectra = sfft.rfft(np.concatenate(clips), self._n_fft, axis=-1, workers=workers)
         first = 0
         for slot, count in zip(slots, map(len, clips)):
             self._clip_spectra[slot, :count] = spectra[first:first + count]
@@ -501,7 +542,13 @@ class BatchEnv:
         # while the other renders. The results do not depend on which thread renders a row.
         keys = list(zip(node.tolist(), heading.tolist()))
         fresh = [key not in self._pose_cache[slot] for slot, key in zip(slots.tolist(), keys)]
-        queue = iter(sorted(range(n), key=fresh.__getitem__, reverse=True))   # stable: fresh first
+        if self._workers is None:
+            queue = iter(sorted(range(n), key=fresh.__getitem__, reverse=True))   # stable: fresh first
+        else:   # the render processes start on the fresh poses now; this process takes the cache hits
+            fresh_rows = [row for row in range(n) if fresh[row]]
+            render_jobs = [self._job(int(slots[row]), keys[row]) for row in fresh_rows]
+            self._workers.start(render_jobs)
+            queue = iter([row for row in range(n) if not fresh[row]])
         jobs = [self._pool.submit(self._render_rows, slots, keys, queue, outputs)
                 for _ in range(min(self.threads, n) - 1)]
         positions = np.empty((n, 2), np.float64)
@@ -520,6 +567,21 @@ class BatchEnv:
         self._render_rows(slots, keys, queue, outputs)
         for job in jobs:
             job.result()
+        if self._workers is not None:   # then renders fresh poses beside them until none is left
+            shared, own = self._workers.shared, []
+            while (index := self._workers.claim()) is not None:
+                render, spectrogram = shared.destination(render_jobs[index], index)
+                render[...] = self._convolve(render_jobs[index].slot)
+                if spectrogram is not None:
+                    log_magnitude_into(render[2:], spectrogram, config=cfg.stft)
+                own.append(index)
+            # Its own renders placed while the render processes finish theirs, then theirs.
+            for index in [*own, None, *sorted(set(range(len(fresh_rows))) - set(own))]:
+                if index is None:
+                    self._workers.finish()
+                else:
+                    job = render_jobs[index]
+                    self._place_rendered(fresh_rows[index], job.slot, *shared.destination(job, index), outputs)
         audio, target_binaural, spectrogram = outputs
         pose = np.column_stack([positions, heading_angle(heading)]).astype(np.float32)
         obs: Observation = {
@@ -545,60 +607,74 @@ class BatchEnv:
         Poses an episode already visited come from the slot's pose cache (same numbers); the
         microphone noise is drawn afresh at every step all the same.
         """
-        audio, target_binaural, spectrogram = outputs
-        cfg, noisy = self.config, self.config.mic_noise > 0
         for row in rows:
             slot, key = int(slots[row]), keys[row]
-            cache = self._pose_cache[slot]
-            entry = cache.get(key)
-            self._renders[slot, int(entry is None)] += 1   # each slot is rendered by one thread
+            entry = self._pose_cache[slot].get(key)
             if entry is None:
-                render = self._convolve(slot)
-                stored = cache.store(key, render)
+                self._place_fresh(row, slot, key, self._convolve(slot), outputs)
             else:
-                render, stored = cache.renders[entry], None
-            target_binaural[row], audio[row] = render[:2], render[2:]
-            if noisy:
-                rms = np.sqrt(np.mean(np.square(audio[row])))
-                noise = self._rngs[slot].standard_normal((2, self.n_samples), dtype=np.float32)
-                audio[row] += (cfg.mic_noise * rms) * noise
-            if entry is None or noisy:
-                # log(1 + |X|) as log(|X| + 1): numpy's float32 log1p is ~5x slower than its log;
-                # they differ by < 1e-6 here.
-                magnitude = np.abs(stft(audio[row], config=cfg.stft), out=spectrogram[row])
-                magnitude += 1.0
-                np.log(magnitude, out=magnitude)
-                if stored is not None and cache.spectrograms is not None:
-                    cache.spectrograms[stored] = magnitude
-            else:
-                spectrogram[row] = cache.spectrograms[entry]
+                self._place_cached(row, slot, entry, outputs)
+
+    def _place_fresh(self, row: int, slot: int, key: tuple[int, int], render: np.ndarray,
+                     outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """A fresh render (4, S) of ``row``'s pose into the slot's pose cache and ``outputs``."""
+        audio, target_binaural, spectrograms = outputs
+        cache = self._pose_cache[slot]
+        self._renders[slot, 1] += 1   # each slot is placed by one thread
+        stored = cache.store(key, render)
+        target_binaural[row], audio[row] = render[:2], render[2:]
+        if self.config.mic_noise > 0:
+            self._add_noise(row, slot, audio)
+        spectrogram = log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
+        if stored is not None and cache.spectrograms is not None:
+            cache.spectrograms[stored] = spectrogram
+
+    def _place_cached(self, row: int, slot: int, entry: int,
+                      outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Pose-cache entry ``entry`` of ``slot`` into ``outputs`` (+ fresh noise and its spectrogram)."""
+        audio, target_binaural, spectrograms = outputs
+        cache = self._pose_cache[slot]
+        self._renders[slot, 0] += 1
+        render = cache.renders[entry]
+        target_binaural[row], audio[row] = render[:2], render[2:]
+        if self.config.mic_noise > 0:
+            self._add_noise(row, slot, audio)
+            log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
+        else:
+            spectrograms[row] = cache.spectrograms[entry]
+
+    def _place_rendered(self, row: int, slot: int, render: np.ndarray, spectrogram: np.ndarray | None,
+                        outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """A fresh pose that a render process (or this one, for them) rendered into the shared map
+        (its pose-cache entry, or the job's buffer without a pose cache) into ``outputs``."""
+        audio, target_binaural, spectrograms = outputs
+        self._renders[slot, 1] += 1
+        target_binaural[row], audio[row] = render[:2], render[2:]
+        if self.config.mic_noise > 0:
+            self._add_noise(row, slot, audio)
+            log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
+        else:
+            spectrograms[row] = spectrogram
+
+    def _add_noise(self, row: int, slot: int, audio: np.ndarray) -> None:
+        rms = np.sqrt(np.mean(np.square(audio[row])))
+        noise = self._rngs[slot].standard_normal((2, self.n_samples), dtype=np.float32)
+        audio[row] += (self.config.mic_noise * rms) * noise
 
     def _convolve(self, slot: int) -> np.ndarray:
         """(4, S) view: the slot's target alone at its pose (rows 0-1), then the clean mixture (rows 2-3)."""
         count, data = int(self._n_sources[slot]), self._slot_scene[slot]
-        node, heading = int(self._node[slot]), int(self._heading[slot])
-        sources = self._sources[slot, :count].tolist()
-        if data.spectra is not None:
-            found = [data.spectra.spectrum(source, node, heading) for source in sources]
-        else:
-            found = self._rir_spectra.spectra([(data.bank, source, node, heading) for source in sources])
-        # Convolution in the frequency domain; by linearity the mixture needs one inverse FFT, and
-        # target and mixture go through it together (pocketfft vectorises over >= 4 rows).
-        both = np.empty((4, found[0].shape[-1]), np.complex64)
-        target, mixture = both[:2], both[2:]
-        np.multiply(found[0], self._clip_spectra[slot, 0], out=target)
-        if count == 1:
-            mixture[:] = target
-        for j in range(1, count):
-            if j == 1:   # source 1 + target: the sum over sources, bit for bit
-                np.multiply(found[1], self._clip_spectra[slot, 1], out=mixture)
-                mixture += target
-            else:
-                mixture += found[j] * self._clip_spectra[slot, j]
-        # Scaled through a float32 view: the same products (the imaginary part of w + 0j adds exact
-        # zeros) without numpy's cast of the scalar to complex, 4x slower for these rows.
-        mixture.view(np.float32)[:] *= self._source_weight[slot]
-        return sfft.irfft(both, self._n_fft, axis=-1, overwrite_x=True)[:, :self.n_samples]
+        found = source_spectra(data.bank, data.spectra, self._rir_spectra, self._sources[slot, :count].tolist(),
+                               int(self._node[slot]), int(self._heading[slot]))
+        return render_pose(found, self._clip_spectra[slot], self._source_weight[slot], n_fft=self._n_fft,
+                           n_samples=self.n_samples)
+
+    def _job(self, slot: int, key: tuple[int, int]) -> RenderJob:
+        """What a render process needs to render ``slot`` at the fresh pose ``key``, and where: the
+        pose-cache entry this reserves for it (-1 without a pose cache)."""
+        count, entry = int(self._n_sources[slot]), self._pose_cache[slot].reserve(key)
+        return RenderJob(slot, _scene_key(self._current[slot]), tuple(self._sources[slot, :count].tolist()),
+                         *key, spectrogram=self.config.mic_noise == 0, entry=-1 if entry is None else entry)
 
 
 @lru_cache(maxsize=8)

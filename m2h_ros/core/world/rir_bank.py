@@ -10,6 +10,7 @@ and memory-mapped on read. The bank's folder may also hold ``spectra_<n_fft>/``,
 from __future__ import annotations
 
 import json
+import mmap
 import os
 import threading
 from concurrent.futures import ProcessPoolExecutor
@@ -54,6 +55,23 @@ def load_mapped(path: Path, shape: tuple[int, ...], dtype: np.dtype | str, *, wh
     return array.view(np.ndarray)
 
 
+_MADV_POPULATE_READ = 22   # Linux >= 5.14; Python's mmap module names it from 3.13 on
+
+
+def populate(array: np.ndarray) -> None:
+    """Map every page of a :func:`load_mapped` array into this process now (``MADV_POPULATE_READ``,
+    reading from disk what the page cache lacks), so that later work takes no page fault for them;
+    where the kernel lacks it, pages map on first touch as before."""
+    base = array.base
+    while base is not None and not isinstance(base, mmap.mmap):
+        base = getattr(base, "base", None)
+    if base is not None:
+        try:
+            base.madvise(_MADV_POPULATE_READ)
+        except OSError:
+            pass
+
+
 def _simulate_and_store(scene: Any, node: int, config: AcousticsConfig, path: Path) -> Path:
     return save_atomic(path, simulate_source(scene, node, config))
 
@@ -89,8 +107,9 @@ class RirBank:
         """Source nodes with no file on disk yet."""
         return [n for n in range(self.n_nodes) if not self.path(n).exists()]
 
-    def build(self, *, progress: bool = True, workers: int = 1) -> None:
-        """Compute every missing source node now (``workers`` processes), then open them all."""
+    def build(self, *, progress: bool = True, workers: int = 1, populate_pages: bool = False) -> None:
+        """Compute every missing source node now (``workers`` processes), then open them all (and
+        with ``populate_pages`` map their pages into this process: :func:`populate`)."""
         todo = self.missing()
         bar = tqdm(total=len(todo), desc=f"RIR bank {self.scene.scene_id}", unit="src",
                    disable=not (progress and self.progress and todo))
@@ -107,7 +126,9 @@ class RirBank:
                 bar.update()
         bar.close()
         for node in range(self.n_nodes):
-            self._source(node)
+            rows = self._source(node)
+            if populate_pages:
+                populate(rows)
 
     def _source(self, node: int) -> np.ndarray:
         """The memory-mapped rows of one source node, computed first if absent."""

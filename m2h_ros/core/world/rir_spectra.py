@@ -20,7 +20,7 @@ import numpy as np
 from scipy import fft as sfft
 
 from m2h_ros.core.world.acoustics import N_HEADINGS
-from m2h_ros.core.world.rir_bank import RirBank, load_mapped, save_atomic
+from m2h_ros.core.world.rir_bank import RirBank, load_mapped, populate, save_atomic
 from m2h_ros.errors import ConfigError
 
 
@@ -144,10 +144,13 @@ class StoredRirSpectra:
             rows = self._source(source)
         return rows[receiver, heading]
 
-    def build(self) -> None:
-        """Compute every missing source file now and map them all."""
+    def build(self, *, populate_pages: bool = False) -> None:
+        """Compute every missing source file now and map them all (and with ``populate_pages`` map
+        their pages into this process: ``rir_bank.populate``)."""
         for source in range(self.bank.n_nodes):
-            self._source(source)
+            rows = self._source(source)
+            if populate_pages:
+                populate(rows)
 
     def size_on_disk(self) -> int:
         return sum(p.stat().st_size for p in self.directory.glob("src_*.npy"))

@@ -245,18 +245,22 @@ def test_rir_spectra_options_are_checked(near_episodes, small_library):
         BatchEnv(near_episodes, small_library, n_envs=1, stored_rir_spectra=1)
 
 
-@pytest.mark.parametrize("task", ["near_target", "far_target"])
-def test_threads_and_pose_cache_change_no_number_across_resets(task, near_episodes, far_episodes, small_library,
-                                                              rir_cache, config):
+@pytest.mark.parametrize("task, speed", [("near_target", "threads"), ("far_target", "threads"),
+                                         ("near_target", "processes"), ("far_target", "processes")])
+def test_threads_pose_cache_and_render_processes_change_no_number_across_resets(
+        task, speed, near_episodes, far_episodes, small_library, rir_cache, config):
     # Near-target slots all reset together (the no-copy path); far-target ones end on Stop at
-    # different steps (partial resets). Three threads sharing the rows and the pose cache reused
-    # by later episodes against one thread rendering every pose afresh, with microphone noise
-    # and without.
+    # different steps (partial resets). Three threads sharing the rows, or two render processes
+    # beside this one (its pose caches in their shared map, with stored RIR spectra near the target
+    # and RIR gathers far from it), with the pose cache reused by later episodes, against one
+    # thread rendering every pose afresh, with microphone noise and without.
     episodes = near_episodes if task == "near_target" else far_episodes
+    option = dict(threads=3) if speed == "threads" else dict(render_processes=2,
+                                                             stored_rir_spectra=task == "near_target")
     for noise in (0.0, 0.05):
         kwargs = dict(n_envs=5, config=dataclasses.replace(config, mic_noise=noise), rir_cache_dir=rir_cache)
         plain = BatchEnv(episodes, small_library, threads=1, pose_cache=0, **kwargs)
-        fast = BatchEnv(episodes, small_library, threads=3, **kwargs)
+        fast = BatchEnv(episodes, small_library, **option, **kwargs)
         (obs_a, info_a), (obs_b, info_b) = plain.reset(), fast.reset()
         rng, resets = np.random.default_rng(9), set()
         for _ in range(45):
@@ -277,6 +281,45 @@ def test_threads_and_pose_cache_change_no_number_across_resets(task, near_episod
         assert (resets == {5}) if task == "near_target" else (resets - {5})
         plain.close()
         fast.close()
+
+
+def test_render_processes_without_pose_cache_change_no_number(near_episodes, small_library, rir_cache, config):
+    kwargs = dict(n_envs=3, config=config, rir_cache_dir=rir_cache, pose_cache=0)
+    plain, fast = BatchEnv(near_episodes, small_library, **kwargs), \
+        BatchEnv(near_episodes, small_library, render_processes=1, **kwargs)
+    (obs_a, _), (obs_b, _) = plain.reset(), fast.reset()
+    rng = np.random.default_rng(2)
+    for _ in range(8):
+        for key in ("audio", "spectrogram"):
+            np.testing.assert_array_equal(obs_a[key], obs_b[key], err_msg=key)
+        actions = rng.integers(4, size=3)
+        (obs_a, *_), (obs_b, *_) = plain.step(actions), fast.step(actions)
+    plain.close()
+    fast.close()
+
+
+def test_render_processes_end_with_the_env_and_a_dead_one_is_named(near_episodes, small_library, rir_cache, config):
+    import os
+    import signal
+
+    kwargs = dict(n_envs=2, config=config, rir_cache_dir=rir_cache)
+    env = BatchEnv(near_episodes, small_library, render_processes=1, **kwargs)
+    env.reset()
+    (pid,) = env.render_process_ids
+    env.close()
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+    env = BatchEnv(near_episodes, small_library, render_processes=1, **kwargs)
+    env.reset()
+    os.kill(env.render_process_ids[0], signal.SIGKILL)
+    with pytest.raises(M2HError, match="render process ended"):
+        for _ in range(25):   # until a step has a fresh pose to hand out
+            env.step(np.array([MOVE_FORWARD, TURN_LEFT]))
+    env.close()
+    with pytest.raises(ConfigError, match="render_processes"):
+        BatchEnv(near_episodes, small_library, render_processes=-1, **kwargs)
+    with pytest.raises(ConfigError, match="render_processes"):
+        BatchEnv(near_episodes, small_library, render_processes=True, **kwargs)
 
 
 def test_gymnasium_env_checker(near_episodes, small_library, rir_cache, config):
