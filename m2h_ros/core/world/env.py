@@ -567,21 +567,8 @@ class BatchEnv:
         self._render_rows(slots, keys, queue, outputs)
         for job in jobs:
             job.result()
-        if self._workers is not None:   # then renders fresh poses beside them until none is left
-            shared, own = self._workers.shared, []
-            while (index := self._workers.claim()) is not None:
-                render, spectrogram = shared.destination(render_jobs[index], index)
-                render[...] = self._convolve(render_jobs[index].slot)
-                if spectrogram is not None:
-                    log_magnitude_into(render[2:], spectrogram, config=cfg.stft)
-                own.append(index)
-            # Its own renders placed while the render processes finish theirs, then theirs.
-            for index in [*own, None, *sorted(set(range(len(fresh_rows))) - set(own))]:
-                if index is None:
-                    self._workers.finish()
-                else:
-                    job = render_jobs[index]
-                    self._place_rendered(fresh_rows[index], job.slot, *shared.destination(job, index), outputs)
+        if self._workers is not None:
+            self._render_beside_workers(fresh_rows, render_jobs, outputs)
         audio, target_binaural, spectrogram = outputs
         pose = np.column_stack([positions, heading_angle(heading)]).astype(np.float32)
         obs: Observation = {
@@ -598,6 +585,27 @@ class BatchEnv:
                 "episode_index": self._episode_index[slots],
                 "done": np.zeros(n, bool), "success": np.zeros(n, bool)}
         return obs, info
+
+    def _render_beside_workers(self, fresh_rows: list[int], jobs: list[RenderJob],
+                               outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Render fresh poses beside the render processes until none is left, then place them all:
+        its own while the processes finish theirs, then theirs."""
+        shared, own = self._workers.shared, []
+        while (index := self._workers.claim()) is not None:
+            render, spectrogram = shared.destination(jobs[index], index)
+            render[...] = self._convolve(jobs[index].slot)
+            if spectrogram is not None:
+                log_magnitude_into(render[2:], spectrogram, config=self.config.stft)
+            own.append(index)
+
+        def place(index: int) -> None:
+            self._place_rendered(fresh_rows[index], jobs[index].slot, *shared.destination(jobs[index], index), outputs)
+
+        for index in own:
+            place(index)
+        self._workers.finish()
+        for index in sorted(set(range(len(jobs))) - set(own)):
+            place(index)
 
     def _render_rows(self, slots: np.ndarray, keys: list[tuple[int, int]], rows,
                      outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
