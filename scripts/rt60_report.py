@@ -33,14 +33,18 @@ def _summary(name: str, rt60: np.ndarray) -> None:
         print(f"  {centre:6.0f} Hz  {p10:5.2f} / {p50:5.2f} / {p90:5.2f}   {inside:4.0%}   max {values.max():5.2f}")
 
 
-def _ratios(name: str, measured: np.ndarray, eyring: np.ndarray) -> None:
+def _ratios(name: str, measured: np.ndarray, eyring: np.ndarray, rooms: list[str]) -> None:
     ratio = measured / eyring
-    within = (np.abs(ratio - 1) <= 0.2).all(axis=1)
-    print(f"{name} / Eyring: median [min, max] per band; {within.sum()} of {len(ratio)} rooms within 20% "
-          f"in every band")
+    outside = np.abs(ratio - 1) > 0.2
+    print(f"{name} / Eyring: median [min, max] per band; {len(ratio) - outside.any(axis=1).sum()} of "
+          f"{len(ratio)} rooms within 20% in every band")
     for band, centre in enumerate(BAND_CENTRES[SHOWN]):
         r = ratio[:, band]
         print(f"  {centre:6.0f} Hz  {np.median(r):4.2f} [{r.min():4.2f}, {r.max():4.2f}]")
+    for k in np.flatnonzero(outside.any(axis=1)):
+        bands = ", ".join(f"{centre:.0f} Hz {ratio[k, band]:.2f}"
+                          for band, centre in enumerate(BAND_CENTRES[SHOWN]) if outside[k, band])
+        print(f"  outside 20%: {rooms[k]}: {bands}")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -62,7 +66,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.measure:
         start = time.perf_counter()
         for where in args.where:
-            eyring_rows, measured_rows = [], []
+            eyring_rows, measured_rows, rooms = [], [], []
             for scene in (scene for split in args.measure for scene in load_split(split)):
                 for index in range(len(scene.rooms)):
                     room, room_index = (scene, index) if where == "scene" else (isolated_room(scene, index), 0)
@@ -73,9 +77,10 @@ def main(argv: list[str] | None = None) -> None:
                         continue
                     measured_rows.append(measured[SHOWN])
                     eyring_rows.append(room_rt60(room, room_index)[SHOWN])
+                    rooms.append(f"{scene.scene_id} room {index} ({scene.rooms[index].area:.1f} m^2)")
             name = f"measured {'in scene' if where == 'scene' else 'isolated'}, {' '.join(args.measure)}"
             _summary(name, np.array(measured_rows))
-            _ratios(name, np.array(measured_rows), np.array(eyring_rows))
+            _ratios(name, np.array(measured_rows), np.array(eyring_rows), rooms)
             series[name] = np.array(measured_rows)
         print(f"simulated in {time.perf_counter() - start:.0f} s")
     if args.png:
