@@ -599,7 +599,8 @@ class BatchEnv:
             own.append(index)
 
         def place(index: int) -> None:
-            self._place_rendered(fresh_rows[index], jobs[index].slot, *shared.destination(jobs[index], index), outputs)
+            self._place(fresh_rows[index], jobs[index].slot, *shared.destination(jobs[index], index), outputs,
+                        fresh=True)
 
         for index in own:
             place(index)
@@ -626,48 +627,35 @@ class BatchEnv:
     def _place_fresh(self, row: int, slot: int, key: tuple[int, int], render: np.ndarray,
                      outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         """A fresh render (4, S) of ``row``'s pose into the slot's pose cache and ``outputs``."""
-        audio, target_binaural, spectrograms = outputs
         cache = self._pose_cache[slot]
-        self._renders[slot, 1] += 1   # each slot is placed by one thread
         stored = cache.store(key, render)
-        target_binaural[row], audio[row] = render[:2], render[2:]
-        if self.config.mic_noise > 0:
-            self._add_noise(row, slot, audio)
-        spectrogram = log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
+        spectrogram = self._place(row, slot, render, None, outputs, fresh=True)
         if stored is not None and cache.spectrograms is not None:
             cache.spectrograms[stored] = spectrogram
 
     def _place_cached(self, row: int, slot: int, entry: int,
                       outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
-        """Pose-cache entry ``entry`` of ``slot`` into ``outputs`` (+ fresh noise and its spectrogram)."""
-        audio, target_binaural, spectrograms = outputs
+        """Pose-cache entry ``entry`` of ``slot`` into ``outputs``."""
         cache = self._pose_cache[slot]
-        self._renders[slot, 0] += 1
-        render = cache.renders[entry]
-        target_binaural[row], audio[row] = render[:2], render[2:]
-        if self.config.mic_noise > 0:
-            self._add_noise(row, slot, audio)
-            log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
-        else:
-            spectrograms[row] = cache.spectrograms[entry]
+        spectrogram = None if cache.spectrograms is None else cache.spectrograms[entry]
+        self._place(row, slot, cache.renders[entry], spectrogram, outputs, fresh=False)
 
-    def _place_rendered(self, row: int, slot: int, render: np.ndarray, spectrogram: np.ndarray | None,
-                        outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
-        """A fresh pose that a render process (or this one, for them) rendered into the shared map
-        (its pose-cache entry, or the job's buffer without a pose cache) into ``outputs``."""
+    def _place(self, row: int, slot: int, render: np.ndarray, spectrogram: np.ndarray | None,
+               outputs: tuple[np.ndarray, np.ndarray, np.ndarray], *, fresh: bool) -> np.ndarray:
+        """A render (4, S) of ``row``'s pose into ``outputs``, plus fresh microphone noise, and its
+        log-magnitude: ``spectrogram`` where it is known (without noise), else computed; returned."""
         audio, target_binaural, spectrograms = outputs
-        self._renders[slot, 1] += 1
+        self._renders[slot, int(fresh)] += 1   # each slot is placed by one thread
         target_binaural[row], audio[row] = render[:2], render[2:]
         if self.config.mic_noise > 0:
-            self._add_noise(row, slot, audio)
-            log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
-        else:
-            spectrograms[row] = spectrogram
-
-    def _add_noise(self, row: int, slot: int, audio: np.ndarray) -> None:
-        rms = np.sqrt(np.mean(np.square(audio[row])))
-        noise = self._rngs[slot].standard_normal((2, self.n_samples), dtype=np.float32)
-        audio[row] += (self.config.mic_noise * rms) * noise
+            rms = np.sqrt(np.mean(np.square(audio[row])))
+            noise = self._rngs[slot].standard_normal((2, self.n_samples), dtype=np.float32)
+            audio[row] += (self.config.mic_noise * rms) * noise
+            spectrogram = None
+        if spectrogram is None:
+            return log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
+        spectrograms[row] = spectrogram
+        return spectrograms[row]
 
     def _convolve(self, slot: int) -> np.ndarray:
         """(4, S) view: the slot's target alone at its pose (rows 0-1), then the clean mixture (rows 2-3)."""

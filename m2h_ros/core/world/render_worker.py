@@ -89,6 +89,12 @@ class _SharedArrays:
             setattr(self, name, flat[offset:offset + count].view(dtype).reshape(shape))
             offset += count
 
+    def take_job(self) -> int:
+        """The next job's index, counted up for the next taker (call it holding the lock)."""
+        index = int(self.counter[0])
+        self.counter[0] = index + 1
+        return index
+
     def pose_cache(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
         """The arrays of ``slot``'s pose cache (renders, spectrograms)."""
         return self.cache_renders[slot], self.cache_spectrograms[slot]
@@ -157,8 +163,7 @@ class RenderWorkers:
                 raise M2HError(f"a BatchEnv render process ended (exit codes "
                                f"{[p.exitcode for p in self._processes]})")
         try:
-            index = int(self.shared.counter[0])
-            self.shared.counter[0] = index + 1
+            index = self.shared.take_job()
         finally:
             self._lock.release()
         return index if index < self._jobs else None
@@ -245,8 +250,7 @@ def _serve(connection: Any, lock: Any, setup: RenderSetup, path: str) -> None:
             jobs = value
             while True:
                 with lock:
-                    index = int(shared.counter[0])
-                    shared.counter[0] = index + 1
+                    index = shared.take_job()
                 if index >= len(jobs):
                     break
                 job = jobs[index]
