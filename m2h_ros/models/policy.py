@@ -280,6 +280,7 @@ class PolicyStep(NamedTuple):
     logits: torch.Tensor  # (..., n_actions)
     value: torch.Tensor  # (...,)
     hidden: torch.Tensor  # (N, hidden) GRU state after the last step
+    outputs: torch.Tensor  # (..., hidden) the GRU's output at each step (what actor and critic read)
 
 
 class PolicyNet(nn.Module):
@@ -341,13 +342,13 @@ class PolicyNet(nn.Module):
     def step(self, inputs: PolicyInputs, hidden: torch.Tensor, starts: torch.Tensor) -> PolicyStep:
         """One step of N slots: inputs (N, ...), hidden (N, H), starts (N,) bool."""
         out, hidden = self._recur(self.features(inputs).unsqueeze(0), hidden, starts.unsqueeze(0))
-        return PolicyStep(self.actor(out[0]), self.critic(out[0])[:, 0], hidden)
+        return PolicyStep(self.actor(out[0]), self.critic(out[0])[:, 0], hidden, out[0])
 
     def evaluate(self, inputs: PolicyInputs, hidden: torch.Tensor, starts: torch.Tensor) -> PolicyStep:
         """A sequence: inputs (T * N, ...) time-major, hidden (N, H) before step 0, starts (T, N)."""
         t, n = starts.shape
         out, hidden = self._recur(self.features(inputs).reshape(t, n, -1), hidden, starts)
-        return PolicyStep(self.actor(out), self.critic(out)[..., 0], hidden)
+        return PolicyStep(self.actor(out), self.critic(out)[..., 0], hidden, out)
 
 
 # --------------------------------------------------------------------------- checkpoints

@@ -28,6 +28,9 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
    value_coef - entropy x entropy_coef; Adam, gradient norm clipped; lr and clip decay linearly.
    With ``teacher_coef`` > 0 (kickstarting, ``training.teacher``) the loss adds that weight, decaying
    with lr, x the cross-entropy from the approach teacher's action distribution at each visited state.
+   With ``location_coef`` > 0 (``training.location``) it adds that weight x the Huber loss of a
+   training-only linear head on the GRU's output that predicts the target's position relative to the
+   robot (an auxiliary task: the GRU learns to gather where the target is over steps and turns).
    ``init_policy`` starts the weights from a checkpoint instead of at random (``models.policy.warm_start``:
    e.g. pi^Q from pi^N, whose actor rows are matched by action; the optimiser starts fresh).
 5. f^R (``train_refiner``, default for ``quality`` only): ``refiner_epochs`` passes of L1 between
@@ -89,6 +92,7 @@ from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward  # noqa: E402
+from m2h_ros.training.location import LocationHead, location_loss, target_offsets  # noqa: E402
 from m2h_ros.training.teacher import teacher_probabilities  # noqa: E402
 
 
@@ -146,6 +150,7 @@ class PPOConfig:
     quality_reward: str = "nmse"  # quality: the measure whose improvement is the reward (QUALITY_REWARDS)
     final_weight: float = 10.0  # quality: + weight x the measure at the last step (-weight x NMSE for nmse)
     teacher_coef: float = 0.0  # kickstarting: weight of the approach teacher's cross-entropy (decays with lr); 0: none
+    location_coef: float = 0.0  # weight of the auxiliary target-location loss (training.location); 0: none
     init_policy: str = ""  # policy checkpoint whose weights the run starts from (models.policy.warm_start); "": random
     seed: int = 0
     threads: int = 2  # torch intra-op threads and env render threads
@@ -171,7 +176,7 @@ class PPOConfig:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a float in (0, 1]")
         if self.quality_reward not in QUALITY_REWARDS:
             raise ConfigError(f"PPOConfig.quality_reward={self.quality_reward!r} must be one of {QUALITY_REWARDS}")
-        for name in ("action_coef", "value_coef", "max_grad_norm", "final_weight", "teacher_coef"):
+        for name in ("action_coef", "value_coef", "max_grad_norm", "final_weight", "teacher_coef", "location_coef"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a number >= 0")
@@ -306,7 +311,7 @@ def plot_curve(path: Path, history: list[dict[str, float]], *, kind: str) -> Pat
         twin.legend(loc="lower right", fontsize=8)
     left.set(title=f"PPO {kind}", xlabel="environment steps", ylabel="return")
     for key, style in (("value_loss", "C1-"), ("action_loss", "C2-"), ("entropy", "C4-"), ("refiner_l1", "C5-"),
-                       ("teacher_ce", "C6-")):
+                       ("teacher_ce", "C6-"), ("location_loss", "C7-")):
         right.plot(steps, [h[key] for h in history], style, label=key.replace("_", " "))
     right.set(title="losses", xlabel="environment steps")
     for ax in (left, right):
@@ -336,6 +341,7 @@ class _Rollout:
     memory: list[torch.Tensor] = field(default_factory=list)
     target: list[torch.Tensor] = field(default_factory=list)
     teacher: list[torch.Tensor] = field(default_factory=list)  # (N, outputs): the approach teacher's distribution
+    offsets: list[torch.Tensor] = field(default_factory=list)  # (N, 2): the target's (forward, left) metres
 
 
 class PPOTrainer:
@@ -354,6 +360,10 @@ class PPOTrainer:
         if config.init_policy:
             warm_start(self.net, load_policy(config.init_policy, map_location=self.device))
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=config.lr, eps=config.adam_eps)
+        # Made only when used: its initialisation draws from torch's generator.
+        self.location_head = LocationHead(self.policy_config.hidden).to(self.device) if config.location_coef else None
+        if self.location_head is not None:
+            self.optimizer.add_param_group({"params": list(self.location_head.parameters())})
         self.loaded = load_separator(config.separator or DEFAULT_SEPARATOR_CHECKPOINT, map_location=self.device)
         self.policy_config.check_stft(self.loaded.stft)
         if self.loaded.stft != config.env.stft:
@@ -439,6 +449,9 @@ class PPOTrainer:
             if cfg.teacher_coef:
                 rollout.teacher.append(torch.from_numpy(teacher_probabilities(
                     self.env.current_episodes, self.obs["node"], self.obs["heading"], self.actions.numpy())))
+            if cfg.location_coef:
+                rollout.offsets.append(torch.from_numpy(target_offsets(
+                    self.env.current_episodes, self.obs["node"], self.obs["heading"])))
             if self.refining:
                 # f^R learns what acting computed: refine(estimate_t, memory before step t), not the
                 # memory after it (that is refined_t itself).
@@ -552,7 +565,9 @@ class PPOTrainer:
             group["lr"] = cfg.lr * self._decay()
         teacher = torch.stack(rollout.teacher) if cfg.teacher_coef else None
         teacher_weight = cfg.teacher_coef * self._decay()
-        sums, count = np.zeros(4), 0
+        offsets = torch.stack(rollout.offsets) if cfg.location_coef else None
+        params = self._policy_parameters()
+        sums, count = np.zeros(6), 0
         per_batch = n // cfg.n_minibatches
         for _ in range(cfg.ppo_epochs):
             order = self.rng.permutation(n)
@@ -577,12 +592,24 @@ class PPOTrainer:
                 else:  # kickstarting: cross-entropy from the teacher's distribution at the states visited
                     teacher_ce = -(teacher[:, slots].to(dev) * log_probs_all).sum(-1).mean()
                     loss = loss + teacher_weight * teacher_ce
+                if offsets is None:
+                    where_loss = where_error = torch.tensor(float("nan"))
+                else:  # the auxiliary task: where the target is, from the GRU's output
+                    where_loss, where_error = location_loss(self.location_head(out.outputs), offsets[:, slots].to(dev))
+                    loss = loss + cfg.location_coef * where_loss
                 self.optimizer.zero_grad()
                 loss.backward()
-                self._step(self.optimizer, list(self.net.parameters()))
-                sums += [value_loss.item(), action_loss.item(), entropy.item(), teacher_ce.item()]
+                self._step(self.optimizer, params)
+                sums += [value_loss.item(), action_loss.item(), entropy.item(), teacher_ce.item(), where_loss.item(),
+                         where_error.item()]
                 count += 1
-        return dict(zip(("value_loss", "action_loss", "entropy", "teacher_ce"), (sums / count).tolist(), strict=True))
+        return dict(zip(("value_loss", "action_loss", "entropy", "teacher_ce", "location_loss", "location_error_m"),
+                        (sums / count).tolist(), strict=True))
+
+    def _policy_parameters(self) -> list[torch.nn.Parameter]:
+        """What the PPO optimiser steps: the policy's, and the location head's when there is one."""
+        head = [] if self.location_head is None else list(self.location_head.parameters())
+        return [*self.net.parameters(), *head]
 
     def _step(self, optimizer: torch.optim.Optimizer, params: list[torch.nn.Parameter]) -> None:
         """All-reduce (DD-PPO), clip the gradient norm, step."""
@@ -630,6 +657,7 @@ class PPOTrainer:
             "history": self.history, "windows": {k: list(v) for k, v in self.windows.items()},
             "wall": self.wall_before + time.perf_counter() - self.session_start,
             "net": self.net.state_dict(), "optimizer": self.optimizer.state_dict(),
+            "location_head": None if self.location_head is None else self.location_head.state_dict(),
             "refiner": self.separator.refiner.state_dict(), "refiner_optimizer": self.refiner_optimizer.state_dict(),
             "generator": self.generator.get_state(), "rng": self.rng.bit_generator.state,
             "env": self.env.state(),
@@ -646,9 +674,11 @@ class PPOTrainer:
         }
 
     def _restore(self, state: dict[str, Any]) -> None:
-        if state["config"] != self.config.to_dict():
-            ours = self.config.to_dict()
-            changed = sorted(k for k in set(ours) | set(state["config"]) if ours.get(k) != state["config"].get(k))
+        ours = self.config.to_dict()
+        # A setting added after the state was written counts as its default there.
+        theirs = {**PPOConfig().to_dict(), **state["config"]}
+        if theirs != ours:
+            changed = sorted(k for k in set(ours) | set(theirs) if ours.get(k) != theirs.get(k))
             raise CheckpointError(f"{self.resume_path} was written by a run with other settings ({', '.join(changed)}); "
                                   f"use another --out or --fresh")
         self.update, self.env_steps, self.history = state["update"], state["env_steps"], state["history"]
@@ -657,6 +687,8 @@ class PPOTrainer:
         self.wall_before = state["wall"]
         self.net.load_state_dict(state["net"])
         self.optimizer.load_state_dict(state["optimizer"])
+        if self.location_head is not None:
+            self.location_head.load_state_dict(state["location_head"])
         self.separator.refiner.load_state_dict(state["refiner"])
         self.refiner_optimizer.load_state_dict(state["refiner_optimizer"])
         self.generator.set_state(state["generator"])
@@ -803,6 +835,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--teacher-coef", type=float, default=PPOConfig.teacher_coef,
                         help="kickstart with the approach teacher (m2h_ros/training/teacher.py): weight of its "
                              "cross-entropy, decaying with lr (0: plain PPO)")
+    parser.add_argument("--location-coef", type=float, default=PPOConfig.location_coef,
+                        help="weight of the auxiliary loss of predicting where the target is from the GRU's "
+                             "output (m2h_ros/training/location.py; 0: none)")
     parser.add_argument("--init-policy", default="",
                         help="start from this policy checkpoint's weights (e.g. pi^Q from the shipped pi^N: "
                              "everything but the Stop logit), not random ones")
@@ -827,6 +862,7 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
                      final_weight=args.final_weight, lr=args.lr, teacher_coef=args.teacher_coef, init_policy=args.init_policy,
+                     location_coef=args.location_coef,
                      entropy_coef=args.entropy_coef, seed=args.seed,
                      threads=args.threads, checkpoint_every=args.checkpoint_every, device=args.device)
 
