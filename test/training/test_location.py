@@ -1,6 +1,6 @@
-"""The target-location auxiliary task: its labels are the target's offset in the robot's frame, its loss
-trains the GRU towards them, a run with it resumes exactly and ships a policy without the head, and a
-resume state written before the option existed still continues."""
+"""The target-location auxiliary task (its command-line weight and its loss's effect: test_teacher.py):
+its labels are the target's offset in the robot's frame, a run with it resumes exactly and ships a
+policy without the head, and a resume state written before the option existed still continues."""
 
 import dataclasses
 
@@ -10,10 +10,10 @@ import torch
 
 from m2h_ros.core.world.episodes import scene_at
 from m2h_ros.core.world.navgrid import HEADING_STEPS, N_HEADINGS
-from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.errors import CheckpointError
 from m2h_ros.models.policy import load_policy
 from m2h_ros.training.location import target_offsets
-from m2h_ros.training.ppo import PPOTrainer, build_parser, config_from_args, train
+from m2h_ros.training.ppo import train
 from test_ppo import tiny
 from test_teacher import _Episode
 
@@ -31,41 +31,6 @@ def test_offsets_are_the_target_in_the_robots_frame():
         left = np.array([-ahead[1], ahead[0]])
         world = grid.positions[goals[slot]] - grid.positions[nodes[slot]]
         np.testing.assert_allclose(offsets[slot], [world @ ahead, world @ left], atol=1e-5)
-
-
-def test_the_command_line_sets_the_location_weight():
-    parser = build_parser()
-    assert config_from_args(parser.parse_args(["--kind", "quality"])).location_coef == 0.0
-    assert config_from_args(parser.parse_args(["--kind", "quality", "--location-coef", "0.5"])).location_coef == 0.5
-    with pytest.raises(ConfigError, match="location_coef"):
-        config_from_args(parser.parse_args(["--kind", "quality", "--location-coef", "-1"]))
-
-
-def _location_loss(trainer, rollout) -> float:
-    with torch.no_grad():
-        out = trainer.net.evaluate(rollout.inputs.flat(), trainer.hidden_start, torch.stack(rollout.starts))
-        predicted = trainer.location_head(out.outputs)
-        return float(torch.nn.functional.smooth_l1_loss(predicted, torch.stack(rollout.offsets)))
-
-
-def test_the_location_term_teaches_the_gru_where_the_target_is(fast_env, separator_path, folder_library, tmp_path):
-    plain = PPOTrainer(tiny(fast_env, separator_path), folder_library, out_dir=tmp_path / "plain", progress=False)
-    plain.env.close()
-    assert plain.location_head is None  # nothing extra unless asked for
-    # Only the location term moves the weights (PPO's terms weighted 0).
-    config = tiny(fast_env, separator_path, location_coef=1.0, action_coef=0.0, value_coef=0.0, entropy_coef=0.0,
-                  train_refiner=False)
-    trainer = PPOTrainer(config, folder_library, out_dir=tmp_path / "located", progress=False)
-    try:
-        trainer._begin()
-        rollout, next_value, _ = trainer._collect()
-        assert len(rollout.offsets) == config.n_steps and rollout.offsets[0].shape == (config.n_envs, 2)
-        before = _location_loss(trainer, rollout)
-        losses = trainer._update_policy(rollout, next_value)
-        assert losses["location_loss"] == pytest.approx(before, rel=0.5) and losses["location_error_m"] > 0
-        assert _location_loss(trainer, rollout) < 0.8 * before
-    finally:
-        trainer.env.close()
 
 
 def test_a_run_with_the_location_term_resumes_exactly(fast_env, separator_path, folder_library, tmp_path):

@@ -1,12 +1,13 @@
 """The approach teacher that kickstarts PPO: its path is a shortest one, its distribution says Stop or
-turn on the target's node by the policy's actions, and its term in the PPO update moves the policy
-towards it on the states the rollout visited."""
+turn on the target's node by the policy's actions, and its term in the PPO update (as the target-location
+task's, training.location) moves the policy towards it on the states the rollout visited."""
 
 import dataclasses
 
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT, scene_at
 from m2h_ros.core.world.navgrid import N_HEADINGS
@@ -69,38 +70,63 @@ def test_the_teacher_follows_the_path_and_stops_or_turns_on_the_target():
         teacher_probabilities(episodes, nodes, headings, np.array([STOP, MOVE_FORWARD, TURN_LEFT]))
 
 
-def test_the_command_line_sets_the_teacher_weight():
+@pytest.mark.parametrize("flag", ["--teacher-coef", "--location-coef"])
+def test_the_command_line_sets_an_auxiliary_loss_weight(flag):
     parser = build_parser()
-    assert config_from_args(parser.parse_args(["--kind", "quality"])).teacher_coef == 0.0  # plain PPO by default
-    assert config_from_args(parser.parse_args(["--kind", "navigation", "--teacher-coef", "2"])).teacher_coef == 2.0
-    with pytest.raises(ConfigError, match="teacher_coef"):
-        config_from_args(parser.parse_args(["--kind", "quality", "--teacher-coef", "-1"]))
+    field = flag.removeprefix("--").replace("-", "_")
+    assert getattr(config_from_args(parser.parse_args(["--kind", "quality"])), field) == 0.0  # plain PPO by default
+    assert getattr(config_from_args(parser.parse_args(["--kind", "navigation", flag, "2"])), field) == 2.0
+    with pytest.raises(ConfigError, match=field):
+        config_from_args(parser.parse_args(["--kind", "quality", flag, "-1"]))
+
+
+def rollout_outputs(trainer, rollout):
+    """The policy's outputs over one rollout's states, as the update computes them."""
+    with torch.no_grad():
+        return trainer.net.evaluate(rollout.inputs.flat(), trainer.hidden_start, torch.stack(rollout.starts))
 
 
 def _teacher_ce(trainer, rollout) -> float:
-    """Cross-entropy from the teacher to the policy on one rollout's states (as the update computes it)."""
-    with torch.no_grad():
-        out = trainer.net.evaluate(rollout.inputs.flat(), trainer.hidden_start, torch.stack(rollout.starts))
-        return float(-(torch.stack(rollout.teacher) * torch.log_softmax(out.logits, -1)).sum(-1).mean())
+    """Cross-entropy from the teacher to the policy on one rollout's states."""
+    logits = rollout_outputs(trainer, rollout).logits
+    return float(-(torch.stack(rollout.teacher) * torch.log_softmax(logits, -1)).sum(-1).mean())
 
 
-def test_the_teachers_term_moves_the_policy_towards_the_teacher(fast_env, separator_path, folder_library,
-                                                                 tmp_path):
+def _location_loss(trainer, rollout) -> float:
+    """Huber loss of the location head's predictions on one rollout's states (training.location)."""
+    predicted = trainer.location_head(rollout_outputs(trainer, rollout).outputs)
+    return float(F.smooth_l1_loss(predicted, torch.stack(rollout.offsets)))
+
+
+# term -> (kind, settings, the rollout's labels and their width, the logged loss, the loss on a rollout)
+AUXILIARY_TERMS = {
+    "teacher": ("navigation", {"teacher_coef": 1.0}, "teacher", 4, "teacher_ce", _teacher_ce),
+    "location": ("quality", {"location_coef": 1.0, "train_refiner": False}, "offsets", 2, "location_loss",
+                 _location_loss),
+}
+
+
+@pytest.mark.parametrize("term", sorted(AUXILIARY_TERMS))
+def test_an_auxiliary_term_alone_moves_the_policy_towards_its_labels(term, fast_env, separator_path, folder_library,
+                                                                      tmp_path):
+    kind, settings, labels, width, logged, measure = AUXILIARY_TERMS[term]
     plain = train(tiny(fast_env, separator_path, updates=1), folder_library, out_dir=tmp_path / "plain",
                   progress=False)
-    assert np.isnan(plain.history[-1]["teacher_ce"])  # logged only when a teacher takes part
-    # Only the teacher's term moves the policy (PPO's terms weighted 0).
-    config = tiny(fast_env, separator_path, kind="navigation", teacher_coef=1.0, action_coef=0.0, value_coef=0.0,
-                  entropy_coef=0.0)
-    trainer = PPOTrainer(config, folder_library, out_dir=tmp_path / "kickstarted", progress=False)
+    assert np.isnan(plain.history[-1][logged])  # logged only when the term takes part
+    # Only this term moves the policy (PPO's terms weighted 0).
+    config = tiny(fast_env, separator_path, kind=kind, action_coef=0.0, value_coef=0.0, entropy_coef=0.0, **settings)
+    trainer = PPOTrainer(config, folder_library, out_dir=tmp_path / term, progress=False)
     try:
         trainer._begin()
         rollout, next_value, _ = trainer._collect()
-        assert len(rollout.teacher) == config.n_steps and rollout.teacher[0].shape == (config.n_envs, 4)
-        before = _teacher_ce(trainer, rollout)
+        rows = getattr(rollout, labels)
+        assert len(rows) == config.n_steps and rows[0].shape == (config.n_envs, width)
+        with torch.no_grad():
+            before = measure(trainer, rollout)
         losses = trainer._update_policy(rollout, next_value)
-        assert losses["teacher_ce"] == pytest.approx(before, rel=0.5)  # its first pass starts from `before`
-        assert _teacher_ce(trainer, rollout) < 0.8 * before
+        assert losses[logged] == pytest.approx(before, rel=0.5)  # its first pass starts from `before`
+        with torch.no_grad():
+            assert measure(trainer, rollout) < 0.8 * before
     finally:
         trainer.env.close()
 
