@@ -92,6 +92,8 @@ from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward  # noqa: E402
+from m2h_ros.training.distributed import all_reduce_mean, all_reduce_sum, init_distributed  # noqa: E402
+from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.location import LocationHead, location_loss, target_offsets  # noqa: E402
 from m2h_ros.training.teacher import teacher_probabilities  # noqa: E402
 
@@ -220,41 +222,6 @@ class TrainResult:
     checkpoint: Path
 
 
-# --------------------------------------------------------------------------- distributed
-
-
-def init_distributed() -> tuple[int, int]:
-    """(rank, world size): joins the torchrun group when launched by torchrun, else (0, 1)."""
-    if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
-        if torch.cuda.is_available():
-            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))  # one GPU per worker
-        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
-    if dist.is_initialized():
-        return dist.get_rank(), dist.get_world_size()
-    return 0, 1
-
-
-def _all_reduce_mean(tensors: list[torch.Tensor], world: int) -> None:
-    """Average tensors in place over all workers (one flat all-reduce)."""
-    if world == 1 or not tensors:
-        return
-    flat = torch.cat([t.reshape(-1) for t in tensors])
-    dist.all_reduce(flat)
-    flat /= world
-    offset = 0
-    for t in tensors:
-        t.copy_(flat[offset: offset + t.numel()].view_as(t))
-        offset += t.numel()
-
-
-def _all_reduce_sum(values: np.ndarray, world: int, device: torch.device) -> np.ndarray:
-    if world == 1:
-        return values
-    tensor = torch.as_tensor(values, dtype=torch.float64, device=device)
-    dist.all_reduce(tensor)
-    return tensor.cpu().numpy()
-
-
 # --------------------------------------------------------------------------- helpers
 
 
@@ -295,14 +262,9 @@ def _to_arrays(values: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
 
 
 def plot_curve(path: Path, history: list[dict[str, float]], *, kind: str) -> Path:
-    """Training curve (matplotlib Agg): episode return and the losses vs environment steps."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
+    """Training curve: episode return (and pi^Q's final NMSE) and the losses vs environment steps."""
     steps = [h["env_steps"] for h in history]
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (left, right) = two_panels()
     left.plot(steps, [h["return_window"] for h in history], "C0-", label="episode return (last 50)")
     if kind == "quality":
         twin = left.twinx()
@@ -314,13 +276,7 @@ def plot_curve(path: Path, history: list[dict[str, float]], *, kind: str) -> Pat
                        ("teacher_ce", "C6-"), ("location_loss", "C7-")):
         right.plot(steps, [h[key] for h in history], style, label=key.replace("_", " "))
     right.set(title="losses", xlabel="environment steps")
-    for ax in (left, right):
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_panels(fig, (left, right), path)
 
 
 # --------------------------------------------------------------------------- the trainer
@@ -553,7 +509,7 @@ class PPOTrainer:
         dones, starts = torch.stack(rollout.dones), torch.stack(rollout.starts)
         advantages = gae(rewards, values, dones, next_value, gamma=cfg.gamma, lam=cfg.gae_lambda)
         returns = advantages + values
-        moments = _all_reduce_sum(np.array([advantages.sum().item(), advantages.square().sum().item(),
+        moments = all_reduce_sum(np.array([advantages.sum().item(), advantages.square().sum().item(),
                                             advantages.numel()]), self.world, dev)
         mean = moments[0] / moments[2]
         std = math.sqrt(max(moments[1] / moments[2] - mean ** 2, 0.0))
@@ -616,7 +572,7 @@ class PPOTrainer:
         for p in params:
             if p.grad is None:
                 p.grad = torch.zeros_like(p)
-        _all_reduce_mean([p.grad for p in params], self.world)
+        all_reduce_mean([p.grad for p in params], self.world)
         torch.nn.utils.clip_grad_norm_(params, self.config.max_grad_norm)
         optimizer.step()
 
@@ -780,7 +736,7 @@ class PPOTrainer:
              times: np.ndarray) -> None:
         keys = WINDOWED
         local = np.array([len(finished)] + [sum(r.get(k, 0.0) for r in finished) for k in keys])
-        totals = _all_reduce_sum(local, self.world, self.device)
+        totals = all_reduce_sum(local, self.world, self.device)
         episodes = int(totals[0])
         for key, total in zip(keys, totals[1:], strict=True):
             if episodes:

@@ -10,7 +10,8 @@ import torch
 import torch.distributed as dist
 
 from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
-from m2h_ros.training.ppo import init_distributed, train
+from m2h_ros.training.distributed import init_distributed
+from m2h_ros.training.ppo import train
 
 spec = importlib.util.spec_from_file_location("root_conftest", Path(__file__).resolve().parents[1] / "conftest.py")
 root_conftest = importlib.util.module_from_spec(spec)
