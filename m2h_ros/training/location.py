@@ -37,15 +37,9 @@ def target_offsets(episodes: Sequence[Episode], nodes: np.ndarray, headings: np.
     return offsets
 
 
-class LocationHead(nn.Module):
-    """GRU output (..., hidden) -> the target's (forward, left) offset in metres."""
-
-    def __init__(self, hidden: int) -> None:
-        super().__init__()
-        self.linear = nn.Linear(hidden, 2)
-
-    def forward(self, state: torch.Tensor) -> torch.Tensor:
-        return self.linear(state)
+def location_head(hidden: int) -> nn.Linear:
+    """The head: GRU output (..., hidden) -> the target's (forward, left) offset in metres."""
+    return nn.Linear(hidden, 2)
 
 
 def location_loss(predicted: torch.Tensor, offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

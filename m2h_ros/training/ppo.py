@@ -94,7 +94,7 @@ from m2h_ros.paths import repo_relative  # noqa: E402
 from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward  # noqa: E402
 from m2h_ros.training.distributed import all_reduce_mean, all_reduce_sum, init_distributed  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
-from m2h_ros.training.location import LocationHead, location_loss, target_offsets  # noqa: E402
+from m2h_ros.training.location import location_head, location_loss, target_offsets  # noqa: E402
 from m2h_ros.training.teacher import teacher_probabilities  # noqa: E402
 
 
@@ -317,7 +317,7 @@ class PPOTrainer:
             warm_start(self.net, load_policy(config.init_policy, map_location=self.device))
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=config.lr, eps=config.adam_eps)
         # Made only when used: its initialisation draws from torch's generator.
-        self.location_head = LocationHead(self.policy_config.hidden).to(self.device) if config.location_coef else None
+        self.location_head = location_head(self.policy_config.hidden).to(self.device) if config.location_coef else None
         if self.location_head is not None:
             self.optimizer.add_param_group({"params": list(self.location_head.parameters())})
         self.loaded = load_separator(config.separator or DEFAULT_SEPARATOR_CHECKPOINT, map_location=self.device)
