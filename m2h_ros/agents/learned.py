@@ -52,9 +52,15 @@ def default_policy_path(kind: str) -> Path:
     return DEFAULT_POLICY_DIR / f"policy_{kind}.pt"
 
 
+# The shipped pi^Q and pi^N come from scripts/train_shipped.sh (their recipes); the rest from PPO's defaults.
+SHIPPED_RECIPES = {"quality": ("scripts/train_shipped.sh quality", "runs/policy_quality/policy.pt"),
+                   "navigation": ("scripts/train_shipped.sh navigation", "runs/policy_navigation/stage2/policy.pt")}
+
+
 def train_command(kind: str) -> str:
-    return (f"python scripts/train_policy.py --kind {kind} --out runs/policy_{kind}, then copy "
-            f"runs/policy_{kind}/policy.pt to {default_policy_path(kind)}")
+    command, trained = SHIPPED_RECIPES.get(
+        kind, (f"python scripts/train_policy.py --kind {kind} --out runs/policy_{kind}", f"runs/policy_{kind}/policy.pt"))
+    return f"{command}, then copy {trained} to {default_policy_path(kind)}"
 
 
 def load_learned(kind: str, path: str | Path = "") -> LoadedPolicy:

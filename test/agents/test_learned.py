@@ -48,7 +48,9 @@ def test_every_learned_controller_is_registered_and_names_its_training_command(t
     assert set(LEARNED) == set(kinds)
     for name, kind in kinds.items():
         assert issubclass(controller_class(name), Controller) and controller_class(name).name == name
-        with pytest.raises(CheckpointError, match=f"scripts/train_policy.py --kind {kind} "):
+        command = (f"scripts/train_shipped.sh {kind}," if kind in ("quality", "navigation")
+                   else f"scripts/train_policy.py --kind {kind} ")
+        with pytest.raises(CheckpointError, match=command):
             make_controller(name, 1)
 
 
@@ -164,7 +166,7 @@ def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
     controller = make_controller("move2hear", 1, checkpoint=str(tmp_path))  # no policy_navigation.pt
     controller.reset(0, start("near_target"))
     assert controller.act(observation(1)).tolist() == [TURN_LEFT]
-    with pytest.raises(CheckpointError, match="navigation policy checkpoint .*policy_navigation.pt not found"):
+    with pytest.raises(CheckpointError, match="navigation policy checkpoint .*policy_navigation.pt not found; train it with `scripts/train_shipped.sh navigation, then copy"):
         controller.reset(0, start("far_target"))
 
 

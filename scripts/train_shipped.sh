@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# A shipped policy in one command, seed 0, one torch thread (the thread count is part of what makes the
+# weights reproducible); a run or stage that stopped resumes where it stopped, a finished one is not
+# trained again. docs/policies.md has what each learned and how long it took.
+#
+#   quality:    pi^Q ("The shipped pi^Q"): 1,600 PPO updates of 32 slots x 20 steps (1,024,000 env steps)
+#               on near-target episodes, f^R frozen, the SI-SDR-improvement reward without the final-step
+#               term, Adam 3e-4, the target-location auxiliary task (weight 1). About 70 min.
+#   navigation: pi^N + Stop ("The shipped pi^N + Stop"): two stages of 1,500 updates (480,000 env steps
+#               each) kickstarted by the approach teacher; stage 2 starts from stage 1's weights
+#               (--init-policy: a fresh Adam, lr decaying again from 3e-4).
+#
+#     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality
+#     cp OUT/policy.pt m2h_ros/models/default/policy_quality.pt
+#     scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
+#     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation.pt
+set -euo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+KIND=${1:?usage: scripts/train_shipped.sh quality|navigation [OUT]}
+OUT=${2:-runs/policy_$KIND}
+case "$KIND" in quality|navigation) ;; *) echo "unknown policy kind '$KIND' (quality or navigation)" >&2; exit 2 ;; esac
+"$ROOT/scripts/setup.sh"
+set +eu  # env.sh sources colcon's setup.bash, which is not written for errexit/nounset
+source "$ROOT/env.sh"
+set -eu
+cd "$ROOT"
+if [ "$KIND" = quality ]; then
+  python scripts/train_policy.py --kind quality --updates 1600 --n-envs 32 --episodes 10000 --frozen-refiner \
+      --seed 0 --threads 1 --quality-reward si_sdr --final-weight 0 --lr 3e-4 --location-coef 1 \
+      --checkpoint-every 50 --out "$OUT"
+  echo "[train_shipped] pi^Q: $OUT/policy.pt"
+else
+  common=(--kind navigation --updates 1500 --episodes 10000 --seed 0 --threads 1 --lr 3e-4 --teacher-coef 1
+          --checkpoint-every 50)
+  python scripts/train_policy.py "${common[@]}" --out "$OUT/stage1"
+  python scripts/train_policy.py "${common[@]}" --init-policy "$OUT/stage1/policy.pt" --out "$OUT/stage2"
+  echo "[train_shipped] pi^N + Stop: $OUT/stage2/policy.pt"
+fi
