@@ -1,0 +1,75 @@
+#!/usr/bin/env python3
+"""Paired comparisons from evaluation results already written: each controller minus a reference's
+final-step score on the same episodes, mean and 95% CI per task and sound split. No episode is played
+again.
+
+    python scripts/paired.py docs/results/near_target_all/results.json --reference doa,stand_in_place \
+        [--metric si_sdr|si_sdr_mixture_phase|stft_distance] [--out paired.md]
+
+Several results files (``results.json`` of ``scripts/evaluate.py``, the evaluator node or ``m2h-eval``)
+are read as one set, so runs of the same episodes compare too; a controller that appears in two files
+on the same episode is an error (rename one run's controller by evaluating it under another name).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from m2h_ros.core.results import METRIC_LABELS, METRICS, EpisodeResult, paired_differences, paired_table, read_results
+from m2h_ros.errors import ConfigError, M2HError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("results", nargs="+", type=Path, help="results.json files")
+    parser.add_argument("--reference", required=True, help="controller(s) to compare with, comma-separated")
+    parser.add_argument("--metric", choices=METRICS, default="si_sdr")
+    parser.add_argument("--out", type=Path, default=None, help="also write the tables to this Markdown file")
+    return parser
+
+
+def load(paths: list[Path]) -> list[EpisodeResult]:
+    results, seen = [], {}
+    for path in paths:
+        for result in read_results(path):
+            key = (result.controller, result.task, result.sound_split, result.episode_id)
+            if key in seen:
+                raise ConfigError(f"{result.controller} played episode {result.episode_id} in both {seen[key]} "
+                                  f"and {path}")
+            seen[key] = path
+            results.append(result)
+    return results
+
+
+def tables(results: list[EpisodeResult], references: list[str], metric: str) -> str:
+    controllers = sorted({r.controller for r in results})
+    sections = []
+    for reference in references:
+        if reference not in controllers:
+            raise ConfigError(f"reference {reference!r} is not in the results; they hold {', '.join(controllers)}")
+        rows = paired_differences(results, reference=reference, metric=metric)
+        sections.append(f"Final-step {METRIC_LABELS[metric]} minus {reference}'s on the same episodes:\n\n"
+                        f"{paired_table(rows)}")
+    return "\n".join(sections)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    command = shlex.join(["python", "scripts/paired.py", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        text = tables(load(args.results), [r for r in args.reference.split(",") if r], args.metric)
+    except M2HError as exc:
+        print(f"paired: error: {exc}", file=sys.stderr)
+        return 2
+    print(text, end="")
+    if args.out:
+        args.out.write_text(f"Command: `{command}`\n\n{text}")
+        print(f"markdown: {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

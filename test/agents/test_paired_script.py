@@ -1,0 +1,51 @@
+"""scripts/paired.py: paired differences from results files already written, across runs."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from m2h_ros.core.results import EpisodeResult, write_results
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "paired.py"
+
+
+@pytest.fixture(scope="module")
+def paired():
+    spec = importlib.util.spec_from_file_location("paired_script", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def run(controller: str, finals: dict[str, float]) -> list[EpisodeResult]:
+    return [EpisodeResult(episode_id=episode, controller=controller, task="near_target", sound_split="heard",
+                          scene_id="s", target_class="speech", actions=[0], si_sdr=[0.0, final],
+                          si_sdr_mixture_phase=[0.0, -final], stft_distance=[1.0, 2.0])
+            for episode, final in finals.items()]
+
+
+def test_runs_written_apart_compare_episode_by_episode(paired, tmp_path, capsys):
+    first = write_results(run("doa", {"a": 1.0, "b": 3.0}) + run("stand_in_place", {"a": 0.0, "b": 0.0}),
+                          tmp_path / "one", plot=False)["json"]
+    # Another run over the same episodes plus one the reference never played (left out of the pairs).
+    second = write_results(run("move2hear", {"b": 4.0, "a": 3.0, "c": 9.0}), tmp_path / "two", plot=False)["json"]
+    out = tmp_path / "paired.md"
+    assert paired.main([str(first), str(second), "--reference", "doa,stand_in_place", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text.startswith(f"Command: `python scripts/paired.py {first} {second} --reference doa,stand_in_place")
+    assert "| move2hear | near_target | heard | 2 | +1.50 ± 6.35 |" in text  # (2, 1): mean 1.5, t(1) CI
+    assert "| stand_in_place | near_target | heard | 2 | -2.00 ± 12.71 |" in text
+    assert "minus stand_in_place's" in text and "| doa | near_target | heard | 2 | +2.00 ± 12.71 |" in text
+    assert paired.main([str(first), str(second), "--reference", "doa", "--metric", "si_sdr_mixture_phase"]) == 0
+    assert "| move2hear | near_target | heard | 2 | -1.50 ± 6.35 |" in capsys.readouterr().out
+
+
+def test_unknown_reference_and_a_run_read_twice_are_clear_errors(paired, tmp_path, capsys):
+    path = write_results(run("doa", {"a": 1.0}), tmp_path, plot=False)["json"]
+    assert paired.main([str(path), "--reference", "oracle"]) == 2
+    assert "reference 'oracle' is not in the results; they hold doa" in capsys.readouterr().err
+    assert paired.main([str(path), str(path), "--reference", "doa"]) == 2
+    assert f"doa played episode a in both {path} and {path}" in capsys.readouterr().err
+    assert paired.main([str(tmp_path / "missing.json"), "--reference", "doa"]) == 2
+    assert "cannot read results file" in capsys.readouterr().err
