@@ -5,10 +5,13 @@ again.
 
     python scripts/paired.py docs/results/near_target_all/results.json --reference doa,stand_in_place \
         [--metric si_sdr|si_sdr_mixture_phase|stft_distance] [--out paired.md]
+    python scripts/paired.py shipped/results.json candidate/results.json --tags shipped,candidate \
+        --reference move2hear:shipped
 
 Several results files (``results.json`` of ``scripts/evaluate.py``, the evaluator node or ``m2h-eval``)
-are read as one set, so runs of the same episodes compare too; a controller that appears in two files
-on the same episode is an error (rename one run's controller by evaluating it under another name).
+are read as one set, so runs of the same episodes compare too. ``--tags`` names each file's run: its
+controllers become ``<controller>:<tag>``, which is how two runs of one controller (say, two policy
+checkpoints) are told apart; without tags, a controller that played an episode in two files is an error.
 """
 
 from __future__ import annotations
@@ -26,15 +29,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", nargs="+", type=Path, help="results.json files")
     parser.add_argument("--reference", required=True, help="controller(s) to compare with, comma-separated")
+    parser.add_argument("--tags", default="", help="one name per results file, comma-separated: its "
+                        "controllers become <controller>:<tag>")
     parser.add_argument("--metric", choices=METRICS, default="si_sdr")
     parser.add_argument("--out", type=Path, default=None, help="also write the tables to this Markdown file")
     return parser
 
 
-def load(paths: list[Path]) -> list[EpisodeResult]:
+def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
+    if tags and len(tags) != len(paths):
+        raise ConfigError(f"--tags names {len(tags)} runs for {len(paths)} results files")
     results, seen = [], {}
-    for path in paths:
+    for at, path in enumerate(paths):
         for result in read_results(path):
+            if tags:
+                result.controller = f"{result.controller}:{tags[at]}"
             key = (result.controller, result.task, result.sound_split, result.episode_id)
             if key in seen:
                 raise ConfigError(f"{result.controller} played episode {result.episode_id} in both {seen[key]} "
@@ -60,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command = shlex.join(["python", "scripts/paired.py", *(sys.argv[1:] if argv is None else argv)])
     try:
-        text = tables(load(args.results), [r for r in args.reference.split(",") if r], args.metric)
+        tags = [t for t in args.tags.split(",") if t]
+        text = tables(load(args.results, tags), [r for r in args.reference.split(",") if r], args.metric)
     except M2HError as exc:
         print(f"paired: error: {exc}", file=sys.stderr)
         return 2

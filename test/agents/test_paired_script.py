@@ -47,5 +47,16 @@ def test_unknown_reference_and_a_run_read_twice_are_clear_errors(paired, tmp_pat
     assert "reference 'oracle' is not in the results; they hold doa" in capsys.readouterr().err
     assert paired.main([str(path), str(path), "--reference", "doa"]) == 2
     assert f"doa played episode a in both {path} and {path}" in capsys.readouterr().err
+    assert paired.main([str(path), str(path), "--tags", "one", "--reference", "doa:one"]) == 2
+    assert "--tags names 1 runs for 2 results files" in capsys.readouterr().err
     assert paired.main([str(tmp_path / "missing.json"), "--reference", "doa"]) == 2
     assert "cannot read results file" in capsys.readouterr().err
+
+
+def test_tags_tell_two_runs_of_one_controller_apart(paired, tmp_path, capsys):
+    shipped = write_results(run("move2hear", {"a": 1.0, "b": 2.0}), tmp_path / "shipped", plot=False)["json"]
+    candidate = write_results(run("move2hear", {"a": 2.0, "b": 4.0}), tmp_path / "candidate", plot=False)["json"]
+    assert paired.main([str(shipped), str(candidate), "--tags", "shipped,candidate",
+                        "--reference", "move2hear:shipped"]) == 0
+    out = capsys.readouterr().out
+    assert "minus move2hear:shipped's" in out and "| move2hear:candidate | near_target | heard | 2 | +1.50 ± 6.35 |" in out
