@@ -2,6 +2,7 @@
 fast acoustics without camera, one data dir per session (RIR banks are built once), the shipped
 separator."""
 
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,18 @@ from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, generate_episodes
 
 SMALL = dict(scene_split="test", scene_preset="small", min_source_distance=3.0)
+SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
+
+
+@pytest.fixture(scope="session")
+def script():
+    """``script("evaluate")``: scripts/evaluate.py loaded as a module (scripts are not a package)."""
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(f"{name}_script", SCRIPTS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    return load
 
 
 @pytest.fixture(scope="session")

@@ -1,8 +1,6 @@
 """scripts/evaluate.py: clear errors, and every controller end to end on a tiny setup."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,15 +9,10 @@ from m2h_ros.agents.registry import CONTROLLER_NAMES, GREEDY, TRAINING_FREE
 from m2h_ros.core.results import write_results
 from m2h_ros.errors import ConfigError
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "evaluate.py"
-
 
 @pytest.fixture(scope="module")
-def evaluate():
-    spec = importlib.util.spec_from_file_location("evaluate_script", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def evaluate(script):
+    return script("evaluate")
 
 
 def test_unknown_controller_and_missing_checkpoint_are_clear_errors(evaluate, tmp_path, capsys):

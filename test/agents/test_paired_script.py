@@ -1,21 +1,15 @@
 """scripts/paired.py: paired differences from results files already written, across runs."""
 
-import importlib.util
-from pathlib import Path
 
 import pytest
 
 from m2h_ros.core.results import EpisodeResult, write_results
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "paired.py"
 
 
 @pytest.fixture(scope="module")
-def paired():
-    spec = importlib.util.spec_from_file_location("paired_script", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def paired(script):
+    return script("paired")
 
 
 def run(controller: str, finals: dict[str, float]) -> list[EpisodeResult]:
