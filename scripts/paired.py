@@ -11,7 +11,9 @@ again.
 Several results files (``results.json`` of ``scripts/evaluate.py``, the evaluator node or ``m2h-eval``)
 are read as one set, so runs of the same episodes compare too. ``--tags`` names each file's run: its
 controllers become ``<controller>:<tag>``, which is how two runs of one controller (say, two policy
-checkpoints) are told apart; without tags, a controller that played an episode in two files is an error.
+checkpoints) are told apart. Without tags, a controller that played an episode in two files counts once
+if both runs agree (the same actions and scores, e.g. the reference evaluated beside each), and is an
+error if they differ.
 """
 
 from __future__ import annotations
@@ -46,9 +48,12 @@ def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
                 result.controller = f"{result.controller}:{tags[at]}"
             key = (result.controller, result.task, result.sound_split, result.episode_id)
             if key in seen:
-                raise ConfigError(f"{result.controller} played episode {result.episode_id} in both {seen[key]} "
-                                  f"and {path}")
-            seen[key] = path
+                first_path, first = seen[key]
+                if result != first:
+                    raise ConfigError(f"{result.controller} played episode {result.episode_id} differently in "
+                                      f"{first_path} and {path} (two runs of it: name them with --tags)")
+                continue
+            seen[key] = path, result
             results.append(result)
     return results
 

@@ -33,14 +33,21 @@ def test_runs_written_apart_compare_episode_by_episode(paired, tmp_path, capsys)
     assert "minus stand_in_place's" in text and "| doa | near_target | heard | 2 | +2.00 ± 12.71 |" in text
     assert paired.main([str(first), str(second), "--reference", "doa", "--metric", "si_sdr_mixture_phase"]) == 0
     assert "| move2hear | near_target | heard | 2 | -1.50 ± 6.35 |" in capsys.readouterr().out
+    # The reference evaluated again, identically, beside the second run counts once.
+    again = write_results(run("doa", {"a": 1.0, "b": 3.0}) + run("move2hear", {"b": 4.0, "a": 3.0}),
+                          tmp_path / "again", plot=False)["json"]
+    assert paired.main([str(first), str(again), "--reference", "doa"]) == 0
+    assert "| move2hear | near_target | heard | 2 | +1.50 ± 6.35 |" in capsys.readouterr().out
 
 
 def test_unknown_reference_and_a_run_read_twice_are_clear_errors(paired, tmp_path, capsys):
     path = write_results(run("doa", {"a": 1.0}), tmp_path, plot=False)["json"]
     assert paired.main([str(path), "--reference", "oracle"]) == 2
     assert "reference 'oracle' is not in the results; they hold doa" in capsys.readouterr().err
-    assert paired.main([str(path), str(path), "--reference", "doa"]) == 2
-    assert f"doa played episode a in both {path} and {path}" in capsys.readouterr().err
+    other = write_results(run("doa", {"a": 2.0}), tmp_path / "other", plot=False)["json"]
+    assert paired.main([str(path), str(other), "--reference", "doa"]) == 2
+    assert f"doa played episode a differently in {path} and {other} (two runs of it: name them with --tags)" \
+        in capsys.readouterr().err
     assert paired.main([str(path), str(path), "--tags", "one", "--reference", "doa:one"]) == 2
     assert "--tags names 1 runs for 2 results files" in capsys.readouterr().err
     assert paired.main([str(tmp_path / "missing.json"), "--reference", "doa"]) == 2
