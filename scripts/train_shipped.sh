@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # A shipped policy in one command, seed 0, one torch thread (the thread count is part of what makes the
-# weights reproducible); a run or stage that stopped resumes where it stopped, a finished one is not
-# trained again. docs/policies.md has what each learned and how long it took.
+# weights reproducible on one machine kind; other CPUs round differently and drift); a run or stage that
+# stopped resumes where it stopped, a finished one is not trained again. docs/policies.md has what each
+# learned and how long it took.
 #
 #   quality:    pi^Q ("The shipped pi^Q"): 1,600 PPO updates of 32 slots x 20 steps (1,024,000 env steps)
 #               on near-target episodes, f^R frozen, the SI-SDR-improvement reward without the final-step
