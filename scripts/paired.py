@@ -23,7 +23,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from m2h_ros.core.results import METRIC_LABELS, METRICS, EpisodeResult, paired_differences, paired_table, read_results
+from m2h_ros.core.results import METRICS, EpisodeResult, paired_differences, paired_section, read_results
 from m2h_ros.errors import ConfigError, M2HError
 
 
@@ -65,8 +65,7 @@ def tables(results: list[EpisodeResult], references: list[str], metric: str) -> 
         if reference not in controllers:
             raise ConfigError(f"reference {reference!r} is not in the results; they hold {', '.join(controllers)}")
         rows = paired_differences(results, reference=reference, metric=metric)
-        sections.append(f"Final-step {METRIC_LABELS[metric]} minus {reference}'s on the same episodes:\n\n"
-                        f"{paired_table(rows)}")
+        sections.append(paired_section(rows, reference=reference, metric=metric))
     return "\n".join(sections)
 
 

@@ -176,6 +176,13 @@ def paired_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> str
     return "\n".join(lines) + "\n"
 
 
+def paired_section(rows: Sequence[dict], *, reference: str, metric: str = "si_sdr",
+                   by: Sequence[str] = GROUP_KEYS) -> str:
+    """``paired_differences`` rows under a heading naming the metric and the reference."""
+    return (f"Final-step {METRIC_LABELS[metric]} minus {reference}'s on the same episodes:\n\n"
+            f"{paired_table(rows, by=by)}")
+
+
 def _cell(value) -> str:
     if value is None:
         return "-"
@@ -215,8 +222,7 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
             "real/imaginary difference (tables without this sentence used a Frobenius norm).\n")
     how = (f"Command: `{command}`\n\n" if command else "") + (f"Setup: {setup}\n\n" if setup else "")
     paired = paired_differences(results, reference=reference, by=by) if reference else []
-    versus = (f"\nFinal-step SI-SDR (dB, GT phase) minus {reference}'s on the same episodes:\n\n"
-              f"{paired_table(paired, by=by)}") if paired else ""
+    versus = f"\n{paired_section(paired, reference=reference, by=by)}" if paired else ""
     paths["markdown"].write_text(f"# {title}\n\n{how}{note}\n{markdown_table(rows, by=by)}{versus}")
     with paths["csv"].open("w", newline="") as stream:
         writer = csv.writer(stream)

@@ -1,10 +1,8 @@
 """scripts/paired.py: paired differences from results files already written, across runs."""
 
-
 import pytest
 
 from m2h_ros.core.results import EpisodeResult, write_results
-
 
 
 @pytest.fixture(scope="module")
