@@ -4,7 +4,7 @@ final-step score on the same episodes, mean and 95% CI per task and sound split.
 again.
 
     python scripts/paired.py docs/results/near_target_all/results.json --reference doa,stand_in_place \
-        [--metric si_sdr|si_sdr_mixture_phase|stft_distance] [--out paired.md]
+        [--metric si_sdr|si_sdr_mixture_phase|stft_distance] [--out paired.md] [--png paired.png]
     python scripts/paired.py shipped/results.json candidate/results.json --tags shipped,candidate \
         --reference move2hear:shipped
 
@@ -13,7 +13,8 @@ are read as one set, so runs of the same episodes compare too. ``--tags`` names 
 controllers become ``<controller>:<tag>``, which is how two runs of one controller (say, two policy
 checkpoints) are told apart. Without tags, a controller that played an episode in two files counts once
 if both runs agree (the same actions and scores, e.g. the reference evaluated beside each), and is an
-error if they differ.
+error if they differ. ``--png`` draws the differences as a forest plot (one panel per reference and
+task, each controller's mean and 95% CI per sound split).
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from m2h_ros.core.results import METRICS, EpisodeResult, paired_differences, paired_section, read_results
+from m2h_ros.core.results import (METRICS, EpisodeResult, paired_differences, paired_section, plot_paired,
+                                  read_results)
 from m2h_ros.errors import ConfigError, M2HError
 
 
@@ -35,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "controllers become <controller>:<tag>")
     parser.add_argument("--metric", choices=METRICS, default="si_sdr")
     parser.add_argument("--out", type=Path, default=None, help="also write the tables to this Markdown file")
+    parser.add_argument("--png", type=Path, default=None, help="also draw the differences as a forest plot")
     return parser
 
 
@@ -58,15 +61,15 @@ def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
     return results
 
 
-def tables(results: list[EpisodeResult], references: list[str], metric: str) -> str:
+def differences(results: list[EpisodeResult], references: list[str], metric: str) -> dict[str, list[dict]]:
+    """``paired_differences`` rows per reference."""
     controllers = sorted({r.controller for r in results})
-    sections = []
+    by_reference = {}
     for reference in references:
         if reference not in controllers:
             raise ConfigError(f"reference {reference!r} is not in the results; they hold {', '.join(controllers)}")
-        rows = paired_differences(results, reference=reference, metric=metric)
-        sections.append(paired_section(rows, reference=reference, metric=metric))
-    return "\n".join(sections)
+        by_reference[reference] = paired_differences(results, reference=reference, metric=metric)
+    return by_reference
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -74,11 +77,16 @@ def main(argv: list[str] | None = None) -> int:
     command = shlex.join(["python", "scripts/paired.py", *(sys.argv[1:] if argv is None else argv)])
     try:
         tags = [t for t in args.tags.split(",") if t]
-        text = tables(load(args.results, tags), [r for r in args.reference.split(",") if r], args.metric)
+        rows = differences(load(args.results, tags), [r for r in args.reference.split(",") if r], args.metric)
+        if args.png:
+            plot_paired([row for per_reference in rows.values() for row in per_reference], args.png)
     except M2HError as exc:
         print(f"paired: error: {exc}", file=sys.stderr)
         return 2
+    text = "\n".join(paired_section(r, reference=ref, metric=args.metric) for ref, r in rows.items())
     print(text, end="")
+    if args.png:
+        print(f"plot: {args.png}")
     if args.out:
         args.out.write_text(f"Command: `{command}`\n\n{text}")
         print(f"markdown: {args.out}")

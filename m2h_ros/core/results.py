@@ -161,10 +161,55 @@ def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metr
         if key[at] == reference or base is None:
             continue
         shared = sorted(values.keys() & base.keys())
+        if not shared:
+            continue
         mean, half = mean_ci([values[e] - base[e] for e in shared])
         rows.append({**dict(zip(by, key)), "reference": reference, "metric": metric, "episodes": len(shared),
                      "difference": mean, "ci95": half})
     return rows
+
+
+def forest_order(rows: Sequence[dict]) -> list[str]:
+    """The controllers of ``paired_differences`` rows, lowest mean difference (over the rows' splits) first."""
+    means: dict[str, list[float]] = {}
+    for row in rows:
+        means.setdefault(row["controller"], []).append(row["difference"])
+    return sorted(means, key=lambda c: (float(np.mean(means[c])), c))
+
+
+def plot_paired(rows: Sequence[dict], path: str | Path, *, title: str = "") -> Path:
+    """Forest plot of ``paired_differences`` rows: one panel per (reference, task), one line per
+    controller (the best on top), its mean difference and 95% CI per sound split, zero marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not rows:
+        raise ConfigError("no paired differences to plot (does any controller share episodes with the reference?)")
+    panels = list(dict.fromkeys((r["reference"], r["task"]) for r in rows))
+    splits = list(dict.fromkeys(r["sound_split"] for r in rows))
+    tallest = max(len({r["controller"] for r in rows if (r["reference"], r["task"]) == p}) for p in panels)
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 1.3 + 0.38 * tallest), squeeze=False)
+    for ax, (reference, task) in zip(axes[0], panels):
+        mine = [r for r in rows if (r["reference"], r["task"]) == (reference, task)]
+        order = forest_order(mine)
+        for at, split in enumerate(splits):
+            # Splits side by side on each controller's line, so their intervals do not hide each other.
+            offset = (at - (len(splits) - 1) / 2) * 0.22
+            points = [r for r in mine if r["sound_split"] == split]
+            ax.errorbar([r["difference"] for r in points], [order.index(r["controller"]) + offset for r in points],
+                        xerr=[r["ci95"] for r in points], fmt="o", markersize=4, capsize=2, label=split)
+        ax.axvline(0.0, color="black", linewidth=0.8)
+        ax.set_yticks(range(len(order)), order, fontsize=8)
+        ax.set_xlabel(f"{METRIC_LABELS[mine[0]['metric']]} minus {reference}")
+        ax.set_title(f"{title} {task}".strip(), fontsize=10)
+        ax.grid(axis="x", alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path)
 
 
 def paired_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> str:

@@ -59,3 +59,21 @@ def test_tags_tell_two_runs_of_one_controller_apart(paired, tmp_path, capsys):
                         "--reference", "move2hear:shipped"]) == 0
     out = capsys.readouterr().out
     assert "minus move2hear:shipped's" in out and "| move2hear:candidate | near_target | heard | 2 | +1.50 ± 6.35 |" in out
+
+
+def test_forest_plot_orders_controllers_by_their_difference(paired, tmp_path, capsys):
+    from m2h_ros.core.results import forest_order
+
+    path = write_results(run("stand_in_place", {"a": 0.0, "b": 0.0}) + run("doa", {"a": 1.0, "b": 1.0})
+                         + run("random", {"a": -1.0, "b": -3.0}) + run("move2hear", {"a": 2.0, "b": 4.0}),
+                         tmp_path, plot=False)["json"]
+    png = tmp_path / "forest.png"
+    assert paired.main([str(path), "--reference", "stand_in_place", "--png", str(png)]) == 0
+    assert f"plot: {png}" in capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rows = paired.differences(paired.load([path], []), ["stand_in_place"], "si_sdr")["stand_in_place"]
+    assert forest_order(rows) == ["random", "doa", "move2hear"]  # drawn bottom to top: the best on top
+    # A reference that shares no episode with anything leaves nothing to draw: said, not an empty figure.
+    alone = write_results(run("doa", {"z": 1.0}) + run("random", {"y": 0.0}), tmp_path / "alone", plot=False)["json"]
+    assert paired.main([str(alone), "--reference", "doa", "--png", str(tmp_path / "none.png")]) == 2
+    assert "no paired differences to plot" in capsys.readouterr().err
