@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
@@ -25,3 +26,8 @@ def repo_relative(path: str | os.PathLike) -> str:
         return path.resolve().relative_to(REPO_DIR).as_posix()
     except ValueError:
         return str(path)
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The first 12 hex digits of a file's sha256: how tables name the model files they ran."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]

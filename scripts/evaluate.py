@@ -18,7 +18,6 @@ far-target), each controller's final-step SI-SDR minus ``--reference``'s on the 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import os
 import shlex
 import sys
@@ -42,7 +41,7 @@ from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeCon
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-from m2h_ros.paths import repo_relative  # noqa: E402
+from m2h_ros.paths import file_sha256, repo_relative  # noqa: E402
 
 
 def names(text: str, *, allowed: Sequence[str], what: str) -> list[str]:
@@ -98,9 +97,12 @@ def select_episodes(task: str, split: str, *, first: int, count: int, library: S
 
 
 def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence[Episode], *,
-        loaded: LoadedSeparator, library: SoundLibrary, env_config: EnvConfig) -> list[EpisodeResult]:
-    """Every controller on every episode; results grouped by controller, episodes in list order."""
+        loaded: LoadedSeparator, library: SoundLibrary, env_config: EnvConfig
+        ) -> tuple[list[EpisodeResult], dict[str, list[Path]]]:
+    """Every controller on every episode; results grouped by controller, episodes in list order; and
+    the model files each controller ran."""
     results: list[EpisodeResult] = []
+    model_files: dict[str, list[Path]] = {}
     slots = min(args.slots, len(episodes))
     for name in controllers:
         checkpoint = ("" if name in TRAINING_FREE else args.locator_checkpoint if name in SUPERVISED
@@ -109,7 +111,14 @@ def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence
         runner = SeparatorRunner(loaded, slots)
         results += evaluate_controller(controller, runner, episodes, library, env_config=env_config,
                                        threads=args.threads, progress=not args.no_progress)
-    return results
+        model_files[name] = controller.model_files()
+    return results, model_files
+
+
+def describe_models(model_files: dict[str, list[Path]]) -> dict[str, list[str]]:
+    """Each controller's model files as "path (sha256 prefix)", for a table's setup line."""
+    return {name: [f"{repo_relative(path)} (sha256 {file_sha256(path)})"
+                   for path in paths] for name, paths in model_files.items() if paths}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -136,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                      library=library, scene_split=args.scene_split)]
         env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
                                mic_noise=args.mic_noise)
-        results = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
+        results, model_files = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
         meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
                 "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",
                 "task": args.task, "scene_split": args.scene_split,
@@ -145,10 +154,12 @@ def main(argv: list[str] | None = None) -> int:
                 "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
                 "load_average": [round(x, 2) for x in os.getloadavg()]}
         reference = args.reference if args.reference in controllers else None
-        meta["separator_sha256"] = hashlib.sha256(Path(loaded.path).read_bytes()).hexdigest()[:12]
+        meta["separator_sha256"] = file_sha256(loaded.path)
         meta["acoustics"] = f"v{acoustics.VERSION} {env_config.acoustics.digest()}"
+        meta["models"] = describe_models(model_files)
         setup = (f"separator `{Path(loaded.path).name}` (sha256 {meta['separator_sha256']}), "
-                 f"acoustics {meta['acoustics']}")
+                 f"acoustics {meta['acoustics']}"
+                 + "".join(f"; {name}: {', '.join(files)}" for name, files in meta["models"].items()))
         paths = write_results(results, args.out, title=f"{args.task} {args.scene_split} episodes, {' + '.join(splits)} sounds",
                               meta=meta, command=command, setup=setup, reference=reference)
     except M2HError as exc:

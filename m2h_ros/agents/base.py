@@ -18,6 +18,7 @@ import dataclasses
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -122,6 +123,11 @@ class Controller(ABC):
             raise ConfigError(f"slot {slot} is not in [0, {self.n_slots})")
         self.starts[slot] = start
         self.rngs[slot] = np.random.default_rng([self.seed, start.seed, _RNG_SALT])
+
+    def model_files(self) -> list[Path]:
+        """The trained models this controller has loaded (none for the training-free ones): what a
+        results table must name besides its command, since the shipped files change."""
+        return []
 
     def act(self, obs: ControllerObservation) -> np.ndarray:
         """(B,) int64 actions (STOP, MOVE_FORWARD, TURN_LEFT, TURN_RIGHT) for the B slots."""

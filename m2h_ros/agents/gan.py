@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -151,6 +152,9 @@ class GanEtAl(TaskAware):
         self.last: list[tuple[tuple[int, int], int] | None] = [None] * self.n_slots  # pose of the last act
         self.moved_forward = np.zeros(self.n_slots, bool)  # whether the last action was MoveForward
         self.target_class = np.zeros(self.n_slots, np.int64)
+
+    def model_files(self) -> list[Path]:
+        return [self.locator.path]
 
     def reset(self, slot: int, start: EpisodeStart) -> None:
         super().reset(slot, start)

@@ -53,7 +53,7 @@ def default_policy_path(kind: str) -> Path:
 
 
 # The shipped pi^Q and pi^N come from scripts/train_shipped.sh (their recipes); the rest from PPO's defaults.
-SHIPPED_RECIPES = {"quality": ("scripts/train_shipped.sh quality", "runs/policy_quality/policy.pt"),
+SHIPPED_RECIPES = {"quality": ("scripts/train_shipped.sh quality", "runs/policy_quality/stage2/policy.pt"),
                    "navigation": ("scripts/train_shipped.sh navigation", "runs/policy_navigation/stage2/policy.pt")}
 
 
@@ -127,6 +127,9 @@ class LearnedController(Controller):
         self.target_class = np.zeros(self.n_slots, np.int64)
         self.drivers = self._drivers(checkpoint)
         self.uses_camera = any(d.loaded.config.camera for d in self.drivers)
+
+    def model_files(self) -> list[Path]:
+        return [driver.loaded.path for driver in self.drivers]
 
     @abstractmethod
     def _drivers(self, checkpoint: str) -> list[PolicyDriver]:

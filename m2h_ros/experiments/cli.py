@@ -4,7 +4,6 @@ the jobs run (local Ray CPUs or a cluster), where the report goes."""
 from __future__ import annotations
 
 import argparse
-import hashlib
 import shlex
 import sys
 import time
@@ -13,14 +12,14 @@ from pathlib import Path
 
 from m2h_ros.errors import M2HError
 from m2h_ros.experiments.sweep import Condition, Sweep, run_sweep, write_sweep
-from m2h_ros.paths import REPO_DIR, repo_relative
+from m2h_ros.paths import REPO_DIR, file_sha256, repo_relative
 
 
 def _separators(conditions: Sequence[Condition]) -> dict:
     """The separator checkpoints the conditions name (repo-relative path, sha256 prefix), for the meta."""
     named = {c.label: Path(c.separator) for c in conditions if c.separator}
     return {"separators": {label: {"path": repo_relative(path),
-                                   "sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:12]}
+                                   "sha256": file_sha256(path)}
                            for label, path in named.items()}} if named else {}
 
 

@@ -36,8 +36,9 @@ def test_every_controller_end_to_end_on_tiny_episodes(evaluate, small_episodes, 
                                                       tmp_path):
     episodes = small_episodes(count=2, max_steps=3, seed=5)
     args = evaluate.build_parser().parse_args(["--slots", "2", "--threads", "1", "--no-progress"])
-    results = evaluate.run(args, list(TRAINING_FREE), episodes, loaded=separator, library=folder_library,
-                           env_config=env_config)
+    results, model_files = evaluate.run(args, list(TRAINING_FREE), episodes, loaded=separator, library=folder_library,
+                                        env_config=env_config)
+    assert model_files == {name: [] for name in TRAINING_FREE}  # nothing trained to name in the setup line
     assert [(r.controller, r.episode_id) for r in results] == [(c, e.episode_id) for c in TRAINING_FREE
                                                                for e in episodes]
     paths = write_results(results, tmp_path, title="tiny", command="python scripts/evaluate.py --count 2",

@@ -73,6 +73,7 @@ def test_with_a_perfect_locator_it_walks_to_the_target_and_stops(small_episodes,
                                                                  locator_path):
     episodes = small_episodes(count=4, max_steps=30, task="far_target", seed=3)
     controller = GanEtAl(len(episodes), checkpoint=str(locator_path), replan_every=5)
+    assert controller.model_files() == [locator_path]
     oracle = TrueLocator()
     controller.locator = dataclasses.replace(controller.locator, net=oracle)
     # Slots that end start wrapped-around episodes (autoreset); only their first episode counts.

@@ -57,7 +57,7 @@ def test_every_learned_controller_is_registered_and_names_its_training_command(t
 def test_actions_are_the_networks_with_greedy_and_sampled_modes(tmp_path):
     net = saved(tmp_path / "q.pt", SMALL, "quality", seed=1)
     controller = learned.Move2HearQuality(3, checkpoint=str(tmp_path / "q.pt"), greedy=True)
-    assert controller.uses_camera
+    assert controller.uses_camera and controller.model_files() == [tmp_path / "q.pt"]
     for slot in range(3):
         controller.reset(slot, start(seed=slot, target=("speech", "music", "music")[slot]))
     obs = observation(3)
