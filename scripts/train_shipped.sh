@@ -4,15 +4,17 @@
 # stopped resumes where it stopped, a finished one is not trained again. docs/policies.md has what each
 # learned and how long it took.
 #
-#   quality:    pi^Q ("The shipped pi^Q"): 1,600 PPO updates of 32 slots x 20 steps (1,024,000 env steps)
-#               on near-target episodes, f^R frozen, the SI-SDR-improvement reward without the final-step
-#               term, Adam 3e-4, the target-location auxiliary task (weight 1). About 70 min.
+#   quality:    pi^Q ("The shipped pi^Q"): two stages of PPO on near-target episodes, 32 slots x 20 steps,
+#               f^R frozen, the SI-SDR-improvement reward without the final-step term, Adam 3e-4, the
+#               target-location auxiliary task (weight 1): stage 1, 1,600 updates (1,024,000 env steps,
+#               seed 0, about 70 min); stage 2 from its weights, 1,000 updates (640,000 env steps) on
+#               10,000 other episodes (seed 1), a fresh Adam, about 57 min.
 #   navigation: pi^N + Stop ("The shipped pi^N + Stop"): two stages of 1,500 updates (480,000 env steps
 #               each) kickstarted by the approach teacher; stage 2 starts from stage 1's weights
 #               (--init-policy: a fresh Adam, lr decaying again from 3e-4).
 #
 #     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality
-#     cp OUT/policy.pt m2h_ros/models/default/policy_quality.pt
+#     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_quality.pt
 #     scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation.pt
 set -euo pipefail
@@ -26,10 +28,12 @@ source "$ROOT/env.sh"
 set -eu
 cd "$ROOT"
 if [ "$KIND" = quality ]; then
-  python scripts/train_policy.py --kind quality --updates 1600 --n-envs 32 --episodes 10000 --frozen-refiner \
-      --seed 0 --threads 1 --quality-reward si_sdr --final-weight 0 --lr 3e-4 --location-coef 1 \
-      --checkpoint-every 50 --out "$OUT"
-  echo "[train_shipped] pi^Q: $OUT/policy.pt"
+  common=(--kind quality --n-envs 32 --episodes 10000 --frozen-refiner --threads 1 --quality-reward si_sdr
+          --final-weight 0 --lr 3e-4 --location-coef 1 --checkpoint-every 50)
+  python scripts/train_policy.py "${common[@]}" --updates 1600 --seed 0 --out "$OUT/stage1"
+  python scripts/train_policy.py "${common[@]}" --updates 1000 --seed 1 --init-policy "$OUT/stage1/policy.pt" \
+      --out "$OUT/stage2"
+  echo "[train_shipped] pi^Q: $OUT/stage2/policy.pt"
 else
   common=(--kind navigation --updates 1500 --episodes 10000 --seed 0 --threads 1 --lr 3e-4 --teacher-coef 1
           --checkpoint-every 50)

@@ -202,7 +202,7 @@ def plot_paired(rows: Sequence[dict], path: str | Path, *, title: str = "") -> P
                         xerr=[r["ci95"] for r in points], fmt="o", markersize=4, capsize=2, label=split)
         ax.axvline(0.0, color="black", linewidth=0.8)
         ax.set_yticks(range(len(order)), order, fontsize=8)
-        ax.set_xlabel(f"{METRIC_LABELS[mine[0]['metric']]} minus {reference}")
+        ax.set_xlabel(f"{METRIC_LABELS[mine[0]['metric']]}\nminus {reference}'s")
         ax.set_title(f"{title} {task}".strip(), fontsize=10)
         ax.grid(axis="x", alpha=0.3)
         ax.legend(fontsize=7, loc="lower right")
