@@ -169,6 +169,16 @@ def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metr
     return rows
 
 
+def _pyplot():
+    """matplotlib.pyplot on the Agg backend (files only, no display), imported when a plot is drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def forest_order(rows: Sequence[dict]) -> list[str]:
     """The controllers of ``paired_differences`` rows, lowest mean difference (over the rows' splits) first."""
     means: dict[str, list[float]] = {}
@@ -180,20 +190,18 @@ def forest_order(rows: Sequence[dict]) -> list[str]:
 def plot_paired(rows: Sequence[dict], path: str | Path, *, title: str = "") -> Path:
     """Forest plot of ``paired_differences`` rows: one panel per (reference, task), one line per
     controller (the best on top), its mean difference and 95% CI per sound split, zero marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     if not rows:
         raise ConfigError("no paired differences to plot (does any controller share episodes with the reference?)")
-    panels = list(dict.fromkeys((r["reference"], r["task"]) for r in rows))
+    panels: dict[tuple[str, str], list[dict]] = {}
+    for row in rows:
+        panels.setdefault((row["reference"], row["task"]), []).append(row)
     splits = list(dict.fromkeys(r["sound_split"] for r in rows))
-    tallest = max(len({r["controller"] for r in rows if (r["reference"], r["task"]) == p}) for p in panels)
+    orders = {panel: forest_order(mine) for panel, mine in panels.items()}
+    tallest = max(len(order) for order in orders.values())
     fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 1.3 + 0.38 * tallest), squeeze=False)
-    for ax, (reference, task) in zip(axes[0], panels):
-        mine = [r for r in rows if (r["reference"], r["task"]) == (reference, task)]
-        order = forest_order(mine)
+    for ax, ((reference, task), mine) in zip(axes[0], panels.items()):
+        order = orders[reference, task]
         for at, split in enumerate(splits):
             # Splits side by side on each controller's line, so their intervals do not hide each other.
             offset = (at - (len(splits) - 1) / 2) * 0.22
@@ -295,11 +303,7 @@ def read_results(path: str | Path) -> list[EpisodeResult]:
 
 def plot_si_sdr_vs_step(results: Sequence[EpisodeResult], path: str | Path, *, title: str = "") -> Path:
     """Mean SI-SDR (GT phase) per step with its 95% CI band, one line per controller and task."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     groups: dict[tuple[str, str, str], list[EpisodeResult]] = {}
     for r in results:
         groups.setdefault((r.controller, r.task, r.sound_split), []).append(r)
