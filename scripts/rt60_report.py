@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from m2h_ros.core.plotting import agg_pyplot
 from m2h_ros.core.world.acoustics import BAND_CENTRES, AcousticsConfig, measured_room_rt60, room_rt60
 from m2h_ros.core.world.scene import SCENE_SPLITS, isolated_room, load_split
 from m2h_ros.errors import ConfigError
@@ -89,11 +90,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _plot(series: dict[str, np.ndarray], path: str) -> None:
-    import matplotlib  # noqa: PLC0415 (only when a figure is asked for)
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
+    plt = agg_pyplot()
     fig, ax = plt.subplots(figsize=(8, 4))
     centres = np.arange(int(SHOWN.sum()))
     width = 0.8 / len(series)

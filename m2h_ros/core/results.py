@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from m2h_ros.core.plotting import agg_pyplot
 from m2h_ros.core.world.episodes import STOP
 from m2h_ros.errors import ConfigError
 
@@ -169,16 +170,6 @@ def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metr
     return rows
 
 
-def _pyplot():
-    """matplotlib.pyplot on the Agg backend (files only, no display), imported when a plot is drawn."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def forest_order(rows: Sequence[dict]) -> list[str]:
     """The controllers of ``paired_differences`` rows, lowest mean difference (over the rows' splits) first."""
     means: dict[str, list[float]] = {}
@@ -190,7 +181,7 @@ def forest_order(rows: Sequence[dict]) -> list[str]:
 def plot_paired(rows: Sequence[dict], path: str | Path, *, title: str = "") -> Path:
     """Forest plot of ``paired_differences`` rows: one panel per (reference, task), one line per
     controller (the best on top), its mean difference and 95% CI per sound split, zero marked."""
-    plt = _pyplot()
+    plt = agg_pyplot()
     if not rows:
         raise ConfigError("no paired differences to plot (does any controller share episodes with the reference?)")
     panels: dict[tuple[str, str], list[dict]] = {}
@@ -303,7 +294,7 @@ def read_results(path: str | Path) -> list[EpisodeResult]:
 
 def plot_si_sdr_vs_step(results: Sequence[EpisodeResult], path: str | Path, *, title: str = "") -> Path:
     """Mean SI-SDR (GT phase) per step with its 95% CI band, one line per controller and task."""
-    plt = _pyplot()
+    plt = agg_pyplot()
     groups: dict[tuple[str, str, str], list[EpisodeResult]] = {}
     for r in results:
         groups.setdefault((r.controller, r.task, r.sound_split), []).append(r)

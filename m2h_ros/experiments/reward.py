@@ -19,6 +19,7 @@ import numpy as np
 
 from m2h_ros import sim_world
 from m2h_ros.agents.registry import controller_class
+from m2h_ros.core.plotting import agg_pyplot
 from m2h_ros.core.results import EpisodeResult
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
@@ -119,11 +120,7 @@ def run_reward_jobs(jobs: Sequence[EvalJob], *, workers: int, address: str | Non
 
 def plot_training(runs: Sequence[RewardRun], path: Path) -> Path:
     """Final NMSE (the measure every run logs), value loss (in each reward's units) and entropy vs env steps."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
+    plt = agg_pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     for run in runs:
         steps = [r["env_steps"] for r in run.log]

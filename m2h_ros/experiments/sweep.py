@@ -17,6 +17,7 @@ from pathlib import Path
 
 from m2h_ros import sim_world
 from m2h_ros.agents.registry import controller_class
+from m2h_ros.core.plotting import agg_pyplot
 from m2h_ros.core.results import EpisodeResult, mean_ci, paired_differences, paired_table, write_results
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
@@ -122,11 +123,7 @@ def write_sweep(results: Sequence[EpisodeResult], rows: Sequence[dict], out: Pat
 
 def plot_curve(rows: Sequence[dict], path: Path, *, title: str, xlabel: str) -> Path:
     """Final-step SI-SDR (mean ± 95% CI) against the swept value, one panel per task x split."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
+    plt = agg_pyplot()
     panels = sorted({(r["task"], r["sound_split"]) for r in rows})
     fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4), squeeze=False)
     for ax, panel in zip(axes[0], panels, strict=True):

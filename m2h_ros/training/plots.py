@@ -4,21 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from m2h_ros.core.plotting import agg_pyplot
+
 
 def two_panels(figsize: tuple[float, float] = (11, 4)):
     """(figure, (left axes, right axes)) on the Agg backend."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    return plt.subplots(1, 2, figsize=figsize)
+    return agg_pyplot().subplots(1, 2, figsize=figsize)
 
 
 def save_panels(fig, axes, path: Path) -> Path:
     """Grid and legend on every panel, then the PNG; the figure is closed."""
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
+    plt = agg_pyplot()
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
