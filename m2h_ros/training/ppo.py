@@ -261,6 +261,15 @@ def _to_arrays(values: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
     return {key: value.numpy().copy() for key, value in values.items()}
 
 
+def _with_defaults(defaults: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """``given`` with the keys it lacks taken from ``defaults``, in nested dicts too."""
+    merged = {**defaults, **given}
+    for key, value in defaults.items():
+        if isinstance(value, dict) and isinstance(given.get(key), dict):
+            merged[key] = _with_defaults(value, given[key])
+    return merged
+
+
 def plot_curve(path: Path, history: list[dict[str, float]], *, kind: str) -> Path:
     """Training curve: episode return (and pi^Q's final NMSE) and the losses vs environment steps."""
     steps = [h["env_steps"] for h in history]
@@ -356,7 +365,7 @@ class PPOTrainer:
         self.hidden = self.net.initial_hidden(n)
         self.returns, self.lengths = np.zeros(n), np.zeros(n, np.int64)
         self.target_wave = info["target_monaural"].copy()
-        self.target_mag = np.abs(stft(info["target_monaural"], config=self.loaded.stft)).astype(np.float32)
+        self._target_spectra()
         self.visits = np.zeros((n, self.env.max_nodes), np.int64)
         self.visits[np.arange(n), self.obs["node"]] = 1
         self.last_classes = self._classes()
@@ -486,7 +495,7 @@ class PPOTrainer:
         self.final_nmse = after if cfg.quality_reward == "nmse" else nmse(refined, self.target_mag)
         if len(ended):
             self.target_wave[ended] = info["target_monaural"][ended]
-            self.target_mag[ended] = np.abs(stft(info["target_monaural"][ended], config=self.loaded.stft))
+            self._target_spectra(ended)
         # Slots that go on keep their estimate and target: only the new episodes' measure is new.
         self.measure_now = after.copy()
         if len(ended):
@@ -495,8 +504,19 @@ class PPOTrainer:
 
     def _measure(self, refined: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """The reward's quality measure of the estimates of slots ``rows`` against their current targets."""
-        return quality_measure(self.config.quality_reward, refined, self.target_mag[rows], self.target_wave[rows],
+        return quality_measure(self.config.quality_reward, refined, target_spec=self.target_spec[rows],
+                               target_mag=self.target_mag[rows], target_wave=self.target_wave[rows],
                                config=self.loaded.stft)
+
+    def _target_spectra(self, rows: np.ndarray | None = None) -> None:
+        """The STFT and magnitude of the slots' targets (``rows``; all when None) from ``target_wave``,
+        kept for the episode: the reward rebuilds every step's estimate with the target's phase."""
+        if rows is None:
+            self.target_spec = stft(self.target_wave, config=self.loaded.stft)
+            self.target_mag = np.abs(self.target_spec)
+        else:
+            self.target_spec[rows] = stft(self.target_wave[rows], config=self.loaded.stft)
+            self.target_mag[rows] = np.abs(self.target_spec[rows])
 
     # ------------------------------------------------------------------ update
     def _decay(self) -> float:
@@ -623,7 +643,7 @@ class PPOTrainer:
             "previous_memory": None if self.previous_memory is None else self.previous_memory.cpu(),
             "hidden": self.hidden.cpu(),
             "episode": _to_tensors({"starts": self.starts, "returns": self.returns, "lengths": self.lengths,
-                                    "target_mag": self.target_mag, "visits": self.visits,
+                                    "visits": self.visits,
                                     "target_wave": self.target_wave, "measure_now": self.measure_now,
                                     "final_nmse": self.final_nmse, "final_quality": self.final_quality,
                                     "last_classes": self.last_classes}),
@@ -631,8 +651,8 @@ class PPOTrainer:
 
     def _restore(self, state: dict[str, Any]) -> None:
         ours = self.config.to_dict()
-        # A setting added after the state was written counts as its default there.
-        theirs = {**PPOConfig().to_dict(), **state["config"]}
+        # A setting added after the state was written counts as its default there (the env's too).
+        theirs = _with_defaults(PPOConfig().to_dict(), state["config"])
         if theirs != ours:
             changed = sorted(k for k in set(ours) | set(theirs) if ours.get(k) != theirs.get(k))
             raise CheckpointError(f"{self.resume_path} was written by a run with other settings ({', '.join(changed)}); "
@@ -660,9 +680,10 @@ class PPOTrainer:
         self.previous_memory = None if previous is None else previous.to(self.device)
         self.hidden = state["hidden"].to(self.device)
         episode = _to_arrays(state["episode"])
-        for key in ("starts", "returns", "lengths", "target_mag", "target_wave", "visits", "measure_now", "final_nmse",
+        for key in ("starts", "returns", "lengths", "target_wave", "visits", "measure_now", "final_nmse",
                     "final_quality", "last_classes"):
             setattr(self, key, episode[key])
+        self._target_spectra()
 
     def _write(self) -> Path:
         """Checkpoint: this worker's resume state; rank 0 also the policy, separator, log and curve."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from m2h_ros.core.audio.metrics import si_sdr
-from m2h_ros.core.audio.stft import StftConfig, rebuild_ground_truth_phase
+from m2h_ros.core.audio.stft import StftConfig, rebuild_with_phase
 
 # NMSE of the magnitude, SNR of the magnitude in dB, SI-SDR in dB of the ground-truth-phase rebuild
 # (the evaluation's score).
@@ -22,12 +22,15 @@ def nmse(estimate: np.ndarray, target: np.ndarray) -> np.ndarray:
     return error / np.maximum(np.mean(np.square(target), axis=axes, dtype=np.float64), 1e-12)
 
 
-def quality_measure(name: str, estimate: np.ndarray, target_mag: np.ndarray, target_wave: np.ndarray, *,
-                    config: StftConfig) -> np.ndarray:
-    """(B,) quality measure ``name`` (QUALITY_REWARDS) of monaural magnitudes (B, F, T) against the
-    ground-truth magnitudes (B, F, T) and dry monaural clips (B, N) of the target."""
+def quality_measure(name: str, estimate: np.ndarray, *, target_spec: np.ndarray, target_mag: np.ndarray,
+                    target_wave: np.ndarray, config: StftConfig) -> np.ndarray:
+    """(B,) quality measure ``name`` (QUALITY_REWARDS) of monaural magnitudes (B, F, T) against the target's
+    dry monaural clips (B, N), their STFTs (B, F, T) and magnitudes (B, F, T). The STFTs come from the
+    caller, which keeps them for the episode (the target does not change; its estimate does every step)."""
     if name == "si_sdr":
-        return si_sdr(rebuild_ground_truth_phase(estimate, target_wave, config=config), target_wave)
+        # = stft.rebuild_ground_truth_phase(estimate, target_wave), without recomputing the target's STFT
+        rebuilt = rebuild_with_phase(estimate, target_spec, config=config, length=target_wave.shape[-1])
+        return si_sdr(rebuilt, target_wave)
     error = nmse(estimate, target_mag)
     return error if name == "nmse" else -10.0 * np.log10(np.maximum(error, 1e-12))
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
+from m2h_ros.core.audio.metrics import si_sdr
+from m2h_ros.core.audio.stft import DEFAULT_STFT, rebuild_ground_truth_phase, stft
 from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.errors import CheckpointError, ConfigError
@@ -86,13 +87,15 @@ def test_each_quality_reward_has_the_size_of_its_measures_improvement():
     -10 x NMSE or +10 x the dB measure."""
     rng = np.random.default_rng(0)
     wave = rng.standard_normal((3, DEFAULT_STFT.clip_samples)).astype(np.float32)
-    target = np.abs(stft(wave))
+    spec = stft(wave)
+    target = np.abs(spec)
     error = 0.3 * target * rng.choice([-1.0, 1.0], target.shape).astype(np.float32)  # magnitudes stay >= 0
     worse, better = target + error, target + 0.5 * error
     last = np.array([False, True, False])
 
     def measure(name, estimate):
-        return quality_measure(name, estimate, target, wave, config=DEFAULT_STFT)
+        return quality_measure(name, estimate, target_spec=spec, target_mag=target, target_wave=wave,
+                               config=DEFAULT_STFT)
 
     before, after = measure("nmse", worse), measure("nmse", better)
     np.testing.assert_allclose(after, before / 4, rtol=1e-5)
@@ -108,6 +111,8 @@ def test_each_quality_reward_has_the_size_of_its_measures_improvement():
         np.testing.assert_allclose(reward[last], after[last] - before[last] + 10.0 * after[last], rtol=1e-12)
     # SI-SDR is measured on the waveform rebuilt with the target's phase: the exact estimate's is ~perfect.
     assert np.all(measure("si_sdr", target) > 60) and np.all(measure("si_sdr", better) < 30)
+    # ... and is the evaluation's score of it, bit for bit (the reward is given the target's STFT).
+    np.testing.assert_array_equal(measure("si_sdr", better), si_sdr(rebuild_ground_truth_phase(better, wave), wave))
     with pytest.raises(ConfigError, match="quality_reward"):
         PPOConfig(quality_reward="pesq")
 

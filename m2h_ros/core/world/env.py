@@ -18,7 +18,7 @@ its next episode when one ends (same-step auto-reset: the terminal observation g
   Stop (far-target) and truncated after ``max_steps`` actions (max_steps + 1 observations).
 
 Observations (batched over slots): ``audio`` (B, 2, 16000) float32 mixture, ``spectrogram``
-(B, 2, 512, 32) float32 log(1 + |STFT|), ``rgb`` (B, H, W, 3) uint8, ``depth`` (B, H, W, 1) float32
+(B, 2, 512, 32) float32 log(1 + |STFT|) (with ``EnvConfig(spectrogram=True)``), ``rgb`` (B, H, W, 3) uint8, ``depth`` (B, H, W, 1) float32
 metres, ``pose`` (B, 3) float32 (x, y, heading angle in rad), ``node``, ``heading``, ``target_class``
 (0 speech, 1 music), ``step`` (B,) int64. The ground truth the separators are scored and trained on
 is in ``info``: the target's dry clip and
@@ -70,6 +70,10 @@ class EnvConfig:
 
     mic_noise: float = 0.0  # noise std relative to the clean mixture's RMS
     camera: bool = True  # False: no rgb/depth (cheaper audio-only training)
+    # True: the observations add the mixture's log-magnitude STFT ("spectrogram"), for agents of your own.
+    # Off by default: the project's separators, controllers and training read the audio (the separator
+    # takes its own STFT), and a fresh pose's render then skips one STFT.
+    spectrogram: bool = False
     camera_config: CameraConfig = field(default_factory=CameraConfig)
     acoustics: AcousticsConfig = field(default_factory=AcousticsConfig)
     stft: StftConfig = DEFAULT_STFT
@@ -91,7 +95,7 @@ class EnvConfig:
                 raise ConfigError(f"EnvConfig.{name}={value!r} must be a finite number")
         if self.mic_noise < 0:
             raise ConfigError(f"EnvConfig.mic_noise={self.mic_noise!r} must be >= 0")
-        for name in ("camera", "shuffle"):
+        for name in ("camera", "spectrogram", "shuffle"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"EnvConfig.{name}={getattr(self, name)!r} must be a bool")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
@@ -255,6 +259,8 @@ class BatchEnv:
         self._rngs: list[np.random.Generator | None] = [None] * b
         # An episode shows at most max_steps + 1 poses: more entries would never be used.
         capacity = min(self.pose_cache, self.max_episode_steps + 1)
+        # Microphone noise makes every observation's spectrogram new: then none is kept.
+        self._cached_spectrograms = config.spectrogram and config.mic_noise == 0
         self._workers = None
         if render_processes:
             self._workers = RenderWorkers(RenderSetup(
@@ -263,7 +269,7 @@ class BatchEnv:
                 rir_spectra_mib=float(rir_spectra_mib), pose_cache=capacity), int(render_processes))
         shared = self._workers.shared if self._workers is not None else None
         self._pose_cache = [_PoseCache(capacity, self.n_samples, (config.stft.n_freq, config.stft.n_frames),
-                                       spectrograms=config.mic_noise == 0,
+                                       spectrograms=self._cached_spectrograms,
                                        arrays=None if shared is None else shared.pose_cache(slot))
                             for slot in range(b)]
         self._renders = np.zeros((b, 2), np.int64)   # per slot: pose-cache hits, fresh renders
@@ -287,13 +293,14 @@ class BatchEnv:
         f32, inf = np.float32, np.inf
         space = {
             "audio": spaces.Box(-inf, inf, (2, self.n_samples), f32),
-            "spectrogram": spaces.Box(0.0, inf, (2, cfg.stft.n_freq, cfg.stft.n_frames), f32),
             "pose": spaces.Box(-inf, inf, (3,), f32),
             "node": spaces.Discrete(self.max_nodes),
             "heading": spaces.Discrete(N_HEADINGS),
             "target_class": spaces.Discrete(len(TARGET_CATEGORIES)),
             "step": spaces.Discrete(self.max_episode_steps + 1),
         }
+        if cfg.spectrogram:
+            space["spectrogram"] = spaces.Box(0.0, inf, (2, cfg.stft.n_freq, cfg.stft.n_frames), f32)
         if cfg.camera:
             space["rgb"] = spaces.Box(0, 255, (cam.height, cam.width, 3), np.uint8)
             space["depth"] = spaces.Box(0.0, cam.max_depth, (cam.height, cam.width, 1), f32)
@@ -535,7 +542,7 @@ class BatchEnv:
         node, heading, target = self._node[slots], self._heading[slots], self._target[slots]
         outputs = (np.empty((n, 2, self.n_samples), np.float32),          # audio
                    np.empty((n, 2, self.n_samples), np.float32),          # target_binaural
-                   np.empty((n, 2, f.n_freq, f.n_frames), np.float32))    # spectrogram
+                   np.empty((n, 2, f.n_freq, f.n_frames), np.float32) if cfg.spectrogram else None)
         # Rows are independent, so the threads render them in parallel (numpy and pocketfft release
         # the GIL), taking one row at a time from a shared iterator (next() on it is atomic), fresh
         # renders first: one costs ~25x a pose-cache hit, so fixed chunks would leave a thread idle
@@ -572,8 +579,10 @@ class BatchEnv:
         audio, target_binaural, spectrogram = outputs
         pose = np.column_stack([positions, heading_angle(heading)]).astype(np.float32)
         obs: Observation = {
-            "audio": audio, "spectrogram": spectrogram, "pose": pose, "node": node,
+            "audio": audio, "pose": pose, "node": node,
             "heading": heading, "target_class": self._target_class[slots], "step": self._step[slots]}
+        if cfg.spectrogram:
+            obs["spectrogram"] = spectrogram
         if cfg.camera:
             obs["rgb"], obs["depth"] = rgb, depth
         acoustics = cfg.acoustics
@@ -630,20 +639,21 @@ class BatchEnv:
         cache = self._pose_cache[slot]
         stored = cache.store(key, render)
         spectrogram = self._place(row, slot, render, None, outputs, fresh=True)
-        if stored is not None and cache.spectrograms is not None:
+        if stored is not None and spectrogram is not None and self._cached_spectrograms:
             cache.spectrograms[stored] = spectrogram
 
     def _place_cached(self, row: int, slot: int, entry: int,
                       outputs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         """Pose-cache entry ``entry`` of ``slot`` into ``outputs``."""
         cache = self._pose_cache[slot]
-        spectrogram = None if cache.spectrograms is None else cache.spectrograms[entry]
+        spectrogram = cache.spectrograms[entry] if self._cached_spectrograms else None
         self._place(row, slot, cache.renders[entry], spectrogram, outputs, fresh=False)
 
     def _place(self, row: int, slot: int, render: np.ndarray, spectrogram: np.ndarray | None,
-               outputs: tuple[np.ndarray, np.ndarray, np.ndarray], *, fresh: bool) -> np.ndarray:
+               outputs: tuple[np.ndarray, np.ndarray, np.ndarray | None], *, fresh: bool) -> np.ndarray | None:
         """A render (4, S) of ``row``'s pose into ``outputs``, plus fresh microphone noise, and its
-        log-magnitude: ``spectrogram`` where it is known (without noise), else computed; returned."""
+        log-magnitude: ``spectrogram`` where it is known (without noise), else computed; returned
+        (None when the observations hold no spectrogram)."""
         audio, target_binaural, spectrograms = outputs
         self._renders[slot, int(fresh)] += 1   # each slot is placed by one thread
         target_binaural[row], audio[row] = render[:2], render[2:]
@@ -652,6 +662,8 @@ class BatchEnv:
             noise = self._rngs[slot].standard_normal((2, self.n_samples), dtype=np.float32)
             audio[row] += (self.config.mic_noise * rms) * noise
             spectrogram = None
+        if spectrograms is None:
+            return None
         if spectrogram is None:
             return log_magnitude_into(audio[row], spectrograms[row], config=self.config.stft)
         spectrograms[row] = spectrogram
@@ -670,7 +682,7 @@ class BatchEnv:
         pose-cache entry this reserves for it (-1 without a pose cache)."""
         count, entry = int(self._n_sources[slot]), self._pose_cache[slot].reserve(key)
         return RenderJob(slot, _scene_key(self._current[slot]), tuple(self._sources[slot, :count].tolist()),
-                         *key, spectrogram=self.config.mic_noise == 0, entry=-1 if entry is None else entry)
+                         *key, spectrogram=self._cached_spectrograms, entry=-1 if entry is None else entry)
 
 
 @lru_cache(maxsize=8)

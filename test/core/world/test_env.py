@@ -20,7 +20,7 @@ SMALL = dict(scene_preset="small", min_source_distance=3.0)
 
 @pytest.fixture(scope="module")
 def config(fast_acoustics):
-    return EnvConfig(acoustics=fast_acoustics, camera_config=CameraConfig(width=32, height=24))
+    return EnvConfig(acoustics=fast_acoustics, camera_config=CameraConfig(width=32, height=24), spectrogram=True)
 
 
 @pytest.fixture(scope="module")
@@ -296,6 +296,32 @@ def test_render_processes_without_pose_cache_change_no_number(near_episodes, sma
         (obs_a, *_), (obs_b, *_) = plain.step(actions), fast.step(actions)
     plain.close()
     fast.close()
+
+
+@pytest.mark.parametrize("mic_noise", [0.0, 0.1])
+def test_without_the_spectrogram_every_other_observation_is_the_same(near_episodes, small_library, rir_cache,
+                                                                      config, mic_noise):
+    with_it = dataclasses.replace(config, mic_noise=mic_noise)
+    without = dataclasses.replace(with_it, spectrogram=False)
+    kwargs = dict(n_envs=3, rir_cache_dir=rir_cache)
+    envs = [BatchEnv(near_episodes, small_library, config=with_it, **kwargs),
+            BatchEnv(near_episodes, small_library, config=without, **kwargs),
+            BatchEnv(near_episodes, small_library, config=without, render_processes=int(mic_noise == 0), **kwargs)]
+    observations = [env.reset()[0] for env in envs]
+    rng = np.random.default_rng(3)
+    for _ in range(12):   # poses repeat (pose-cache hits) and episodes end (actions include Stop)
+        reference, *others = observations
+        for obs in others:
+            assert set(obs) == set(reference) - {"spectrogram"}
+            for key, value in obs.items():
+                np.testing.assert_array_equal(value, reference[key], err_msg=key)
+        actions = rng.integers(4, size=3)
+        observations = [env.step(actions)[0] for env in envs]
+    for env in envs:
+        env.close()
+    gym = make_env(near_episodes, small_library, rir_cache, without)
+    obs, _ = gym.reset(options={"episode": near_episodes[0]})
+    assert "spectrogram" not in obs and gym.observation_space.contains(obs)
 
 
 def test_render_processes_end_with_the_env_and_a_dead_one_is_named(near_episodes, small_library, rir_cache, config):
