@@ -9,11 +9,11 @@ again.
         --reference move2hear:shipped
 
 Several results files (``results.json`` of ``scripts/evaluate.py``, the evaluator node or ``m2h-eval``)
-are read as one set, so runs of the same episodes compare too. ``--tags`` names each file's run: its
-controllers become ``<controller>:<tag>``, which is how two runs of one controller (say, two policy
-checkpoints) are told apart. Without tags, a controller that played an episode in two files counts once
-if both runs agree (the same actions and scores, e.g. the reference evaluated beside each), and is an
-error if they differ. ``--png`` draws the differences as a forest plot (one panel per reference and
+are read as one set, so runs of the same episodes compare too. A controller that played an episode in
+two files counts once if both runs agree (the same actions and scores, e.g. the reference evaluated
+beside each). Where they differ (say, two policy checkpoints behind one name), ``--tags`` names each
+file's run: that controller becomes ``<controller>:<tag>`` per file; without tags it is an error.
+Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a reference). ``--png`` draws the differences as a forest plot (one panel per reference and
 task, each controller's mean and 95% CI per sound split).
 """
 
@@ -44,12 +44,17 @@ def build_parser() -> argparse.ArgumentParser:
 def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
     if tags and len(tags) != len(paths):
         raise ConfigError(f"--tags names {len(tags)} runs for {len(paths)} results files")
+    runs = [read_results(path) for path in paths]
+    if tags:
+        differing = _differing(runs)
+        for tag, run in zip(tags, runs, strict=True):
+            for result in run:
+                if result.controller in differing:
+                    result.controller = f"{result.controller}:{tag}"
     results, seen = [], {}
-    for at, path in enumerate(paths):
-        for result in read_results(path):
-            if tags:
-                result.controller = f"{result.controller}:{tags[at]}"
-            key = (result.controller, result.task, result.sound_split, result.episode_id)
+    for path, run in zip(paths, runs, strict=True):
+        for result in run:
+            key = _key(result)
             if key in seen:
                 first_path, first = seen[key]
                 if result != first:
@@ -61,11 +66,29 @@ def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
     return results
 
 
+def _key(result: EpisodeResult) -> tuple[str, str, str, str]:
+    return result.controller, result.task, result.sound_split, result.episode_id
+
+
+def _differing(runs: list[list[EpisodeResult]]) -> set[str]:
+    """Controllers that played some episode differently in two runs."""
+    seen, differing = {}, set()
+    for run in runs:
+        for result in run:
+            first = seen.setdefault(_key(result), result)
+            if result != first:
+                differing.add(result.controller)
+    return differing
+
+
 def differences(results: list[EpisodeResult], references: list[str], metric: str) -> dict[str, list[dict]]:
     """``paired_differences`` rows per reference."""
     controllers = sorted({r.controller for r in results})
     by_reference = {}
     for reference in references:
+        plain = reference.rpartition(":")[0]
+        if reference not in controllers and plain in controllers:   # tagged, but it agreed in every run
+            reference = plain
         if reference not in controllers:
             raise ConfigError(f"reference {reference!r} is not in the results; they hold {', '.join(controllers)}")
         by_reference[reference] = paired_differences(results, reference=reference, metric=metric)

@@ -59,6 +59,15 @@ def test_tags_tell_two_runs_of_one_controller_apart(paired, tmp_path, capsys):
                         "--reference", "move2hear:shipped"]) == 0
     out = capsys.readouterr().out
     assert "minus move2hear:shipped's" in out and "| move2hear:candidate | near_target | heard | 2 | +1.50 ± 6.35 |" in out
+    # A controller evaluated identically beside each run keeps its name: one row, not one per tag; asked for
+    # by a tagged name, it is found all the same.
+    base = run("stand_in_place", {"a": 0.0, "b": 0.0})
+    shipped = write_results(run("move2hear", {"a": 1.0, "b": 2.0}) + base, tmp_path / "shipped2", plot=False)["json"]
+    candidate = write_results(run("move2hear", {"a": 2.0, "b": 4.0}) + base, tmp_path / "candidate2",
+                              plot=False)["json"]
+    rows = paired.differences(paired.load([shipped, candidate], ["shipped", "candidate"]),
+                              ["stand_in_place:shipped"], "si_sdr")["stand_in_place"]
+    assert sorted(r["controller"] for r in rows) == ["move2hear:candidate", "move2hear:shipped"]
 
 
 def test_forest_plot_orders_controllers_by_their_difference(paired, tmp_path, capsys):
