@@ -337,7 +337,8 @@ class PPOTrainer:
         self.refiner_optimizer = torch.optim.Adam(self.separator.refiner.parameters(), lr=config.refiner_lr,
                                                   eps=config.adam_eps)
         if self.world > 1:
-            for tensor in [*self.net.state_dict().values(), *self.separator.refiner.state_dict().values()]:
+            head = [] if self.location_head is None else list(self.location_head.state_dict().values())
+            for tensor in [*self.net.state_dict().values(), *self.separator.refiner.state_dict().values(), *head]:
                 dist.broadcast(tensor, 0)
         self.episodes = episodes_for(config.episode_config(), library)
         env_config = dataclasses.replace(config.env, seed=config.env.seed + self.rank)

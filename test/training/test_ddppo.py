@@ -19,7 +19,9 @@ HERE = Path(__file__).resolve().parent
 
 
 def test_two_workers_keep_identical_weights(fast_env, separator_path, folder_library, tmp_path):
-    config = tiny(fast_env, separator_path, updates=2, checkpoint_every=2)
+    # The shipped pi^Q's recipe: SI-SDR reward and the location head, whose weights must stay in sync too.
+    config = tiny(fast_env, separator_path, updates=2, checkpoint_every=2, quality_reward="si_sdr", final_weight=0.0,
+                  location_coef=1.0)
     config = dataclasses.replace(config, episodes=dataclasses.replace(config.episodes, count=4))
     # Episodes and RIR banks first, so the workers do not build the same cache files at once.
     env = BatchEnv(episodes_for(config.episode_config(), folder_library), folder_library, n_envs=1, config=fast_env)
@@ -40,6 +42,8 @@ def test_two_workers_keep_identical_weights(fast_env, separator_path, folder_lib
     # Each worker has its own experience (its own episode order: slot 0 is on episode 3 in rank 0 and
     # on episode 2 in rank 1), and the log counts both workers' steps.
     states = [torch.load(tmp_path / "run" / f"resume.rank{r}.pt", weights_only=True) for r in (0, 1)]
+    for name, tensor in states[0]["location_head"].items():
+        torch.testing.assert_close(states[1]["location_head"][name], tensor, rtol=0, atol=0, msg=name)
     assert states[0]["env"]["episode_index"] != states[1]["env"]["episode_index"]
     assert not torch.equal(states[0]["obs"]["audio"], states[1]["obs"]["audio"])
     with open(tmp_path / "run" / "log.csv") as f:
