@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# A shipped policy in one command, seed 0, one torch thread (the thread count is part of what makes the
-# weights reproducible on one machine kind; other CPUs round differently and drift); a run or stage that
-# stopped resumes where it stopped, a finished one is not trained again. docs/policies.md has what each
-# learned and how long it took.
+# A shipped policy in one command, fixed seeds, THREADS torch threads (default 2: both cores of the 2-core
+# machines it is sized for; the thread count is part of what makes the weights reproducible on one machine
+# kind, other CPUs round differently and drift); a run or stage that stopped resumes where it stopped, a
+# finished one is not trained again. docs/policies.md has what each learned and how long it took.
 #
 #   quality:    pi^Q ("The shipped pi^Q"): two stages of PPO on near-target episodes, 32 slots x 20 steps,
 #               f^R frozen, the SI-SDR-improvement reward without the final-step term, Adam 3e-4, the
@@ -13,7 +13,7 @@
 #               each) kickstarted by the approach teacher; stage 2 starts from stage 1's weights
 #               (--init-policy: a fresh Adam, lr decaying again from 3e-4).
 #
-#     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality
+#     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality; THREADS=1 ... for one thread
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_quality.pt
 #     scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation.pt
@@ -21,6 +21,7 @@ set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 KIND=${1:?usage: scripts/train_shipped.sh quality|navigation [OUT]}
 OUT=${2:-runs/policy_$KIND}
+THREADS=${THREADS:-2}
 case "$KIND" in quality|navigation) ;; *) echo "unknown policy kind '$KIND' (quality or navigation)" >&2; exit 2 ;; esac
 "$ROOT/scripts/setup.sh"
 set +eu  # env.sh sources colcon's setup.bash, which is not written for errexit/nounset
@@ -28,14 +29,14 @@ source "$ROOT/env.sh"
 set -eu
 cd "$ROOT"
 if [ "$KIND" = quality ]; then
-  common=(--kind quality --n-envs 32 --episodes 10000 --frozen-refiner --threads 1 --quality-reward si_sdr
+  common=(--kind quality --n-envs 32 --episodes 10000 --frozen-refiner --threads "$THREADS" --quality-reward si_sdr
           --final-weight 0 --lr 3e-4 --location-coef 1 --checkpoint-every 50)
   python scripts/train_policy.py "${common[@]}" --updates 1600 --seed 0 --out "$OUT/stage1"
   python scripts/train_policy.py "${common[@]}" --updates 1000 --seed 1 --init-policy "$OUT/stage1/policy.pt" \
       --out "$OUT/stage2"
   echo "[train_shipped] pi^Q: $OUT/stage2/policy.pt"
 else
-  common=(--kind navigation --updates 1500 --episodes 10000 --seed 0 --threads 1 --lr 3e-4 --teacher-coef 1
+  common=(--kind navigation --updates 1500 --episodes 10000 --seed 0 --threads "$THREADS" --lr 3e-4 --teacher-coef 1
           --checkpoint-every 50)
   python scripts/train_policy.py "${common[@]}" --out "$OUT/stage1"
   python scripts/train_policy.py "${common[@]}" --init-policy "$OUT/stage1/policy.pt" --out "$OUT/stage2"
