@@ -17,16 +17,16 @@ its next episode when one ends (same-step auto-reset: the terminal observation g
   per metre of geodesic distance gained/lost, -step_penalty per step. An episode is terminated by
   Stop (far-target) and truncated after ``max_steps`` actions (max_steps + 1 observations).
 
-Observations (batched over slots): ``audio`` (B, 2, 16000) float32 mixture, ``spectrogram``
-(B, 2, 512, 32) float32 log(1 + |STFT|) (with ``EnvConfig(spectrogram=True)``), ``rgb`` (B, H, W, 3) uint8, ``depth`` (B, H, W, 1) float32
-metres, ``pose`` (B, 3) float32 (x, y, heading angle in rad), ``node``, ``heading``, ``target_class``
-(0 speech, 1 music), ``step`` (B,) int64. The ground truth the separators are scored and trained on
-is in ``info``: the target's dry clip and
-the target alone as heard (its binaural render, not divided by the number of sources, as in the
-original code's ground-truth components), and ``target_delay`` (B,) float64, the samples after which
-the target's direct sound reaches the head centre (straight-line distance, at least the acoustics'
-``min_distance``, over the speed of sound: where the RIRs put it, HRIR centre delay included), to
-delay-align the dry clip with what the ears hear when scoring estimates in the mixture's phase.
+Observations (batched over slots): ``audio`` (B, 2, 16000) float32 mixture, ``spectrogram`` (B, 2, 512,
+32) float32 log(1 + |STFT|) (only with ``EnvConfig(spectrogram=True)``), ``rgb`` (B, H, W, 3) uint8,
+``depth`` (B, H, W, 1) float32 metres, ``pose`` (B, 3) float32 (x, y, heading angle in rad), ``node``,
+``heading``, ``target_class`` (0 speech, 1 music), ``step`` (B,) int64. The ground truth the separators
+are scored and trained on is in ``info``: the target's dry clip and the target alone as heard (its
+binaural render, not divided by the number of sources, as in the original code's ground-truth
+components), and ``target_delay`` (B,) float64, the samples after which the target's direct sound
+reaches the head centre (straight-line distance, at least the acoustics' ``min_distance``, over the
+speed of sound: where the RIRs put it, HRIR centre delay included), to delay-align the dry clip with
+what the ears hear when scoring estimates in the mixture's phase.
 """
 
 from __future__ import annotations
