@@ -2,7 +2,7 @@
 
     python scripts/bench/sim.py [--steps 200] [--threads 2] [--episodes 1000] [--build-workers 2]
                                 [--repeats 3] [--rir-length 0.5] [--rir-spectra-mib 0] [--fresh-build]
-                                [--stored-rir-spectra] [--render-processes 1]
+                                [--stored-rir-spectra] [--render-processes 1] [--spectrogram]
 
 Uses the test split's default scenes and the default acoustics; builds (or reuses) their RIR banks
 under data_dir() first and reports their size per scene (and the build time of what was missing);
@@ -17,7 +17,7 @@ minor page faults per env step, the MiB it read from disk (files the page cache 
 load average before it (other jobs on the cores slow every
 figure); first, how many cores two processes get at once (``m2h_ros.machine.cores_available``). Then the cost of a fresh render:
 CPU per env step of 16 envs that render every step (no pose cache, camera on, 1 thread) beside the
-bare FFT work such a step needs (RIR rffts, inverse FFTs, STFT), timed in the same process, best of 5
+bare FFT work such a step needs (RIR rffts, inverse FFTs; the STFT only with --spectrogram), timed in the same process, best of 5
 blocks each. Last, the sanity figure:
 over the near-target, unheard test episodes, the raw mixture's SI-SDR as an estimate of the target,
 at the start pose and at the target's node (heading 0); the second must be higher.
@@ -105,15 +105,15 @@ def fresh_builds(workers: int) -> None:
 
 
 def throughput(n_envs: int, camera: bool, steps: int, threads: int, render_processes: int, pose_cache: int,
-               spectra_mib: float, stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig,
-               queue) -> None:
+               spectra_mib: float, stored_spectra: bool, spectrogram: bool, acoustics: AcousticsConfig,
+               episode_config: EpisodeConfig, queue) -> None:
     """Runs in a fresh process: steps/s of one BatchEnv with warm caches, and the peak RSS (CPU: this
     process and its render processes)."""
     library, _ = open_library()
     episodes = episodes_for(episode_config, library)
     env = BatchEnv(episodes, library, n_envs=n_envs, threads=threads, pose_cache=pose_cache,
                    rir_spectra_mib=spectra_mib, stored_rir_spectra=stored_spectra, render_processes=render_processes,
-                   config=EnvConfig(camera=camera, acoustics=acoustics))
+                   config=EnvConfig(camera=camera, acoustics=acoustics, spectrogram=spectrogram))
     env.prepare(progress=False)
     env.reset()
     actions = np.random.default_rng(0).integers(4, size=(steps + 20, n_envs))
@@ -142,13 +142,15 @@ def _best_cpu_ms(work, repeats: int = 5) -> float:
     return 1e3 * best
 
 
-def fresh_render(stored_spectra: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig, queue) -> None:
+def fresh_render(stored_spectra: bool, spectrogram: bool, acoustics: AcousticsConfig, episode_config: EpisodeConfig,
+                 queue) -> None:
     """Runs in a fresh process: CPU per env step when every step renders afresh, and the bare FFT
     work of one such step, both per env step of 16 envs (camera on, 1 thread; with stored RIR
     spectra, no RIR rfft)."""
     library, _ = open_library()
     env = BatchEnv(episodes_for(episode_config, library), library, n_envs=16, pose_cache=0,
-                   stored_rir_spectra=stored_spectra, config=EnvConfig(camera=True, acoustics=acoustics))
+                   stored_rir_spectra=stored_spectra,
+                   config=EnvConfig(camera=True, acoustics=acoustics, spectrogram=spectrogram))
     env.prepare(progress=False)
     env.reset()
     actions = iter(np.random.default_rng(0).integers(1, 4, size=(200, env.n_envs)))   # no Stop
@@ -171,6 +173,8 @@ def fresh_render(stored_spectra: bool, acoustics: AcousticsConfig, episode_confi
              "STFT": lambda: sfft.rfft(frames, axis=-1)}
     if stored_spectra:
         del parts["RIR rfft"]
+    if not env.config.spectrogram:   # no spectrogram observation, no STFT
+        del parts["STFT"]
     fft = {name: _best_cpu_ms(work) / env.n_envs for name, work in parts.items()}
     env.close()
     queue.put((fresh, fft, n_fft))
@@ -226,6 +230,7 @@ def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_co
           f"threads={args.threads}, render processes {args.render_processes}, pose cache {args.pose_cache}/slot, "
           f"RIR spectrum cache "
           f"{args.rir_spectra_mib:g} MiB, stored RIR spectra {'on' if args.stored_rir_spectra else 'off'}, "
+          f"spectrogram observation {'on' if args.spectrogram else 'off'}, "
           f"RIR banks and views warm, {acoustics.rir_length} s RIRs):")
     rates = {}
     for camera in (False, True):
@@ -236,7 +241,8 @@ def throughputs(args: argparse.Namespace, acoustics: AcousticsConfig, episode_co
                 load = os.getloadavg()[0]
                 runs.append((*in_process(throughput, n_envs, camera, args.steps, args.threads,
                                          args.render_processes, args.pose_cache, args.rir_spectra_mib,
-                                         args.stored_rir_spectra, acoustics, episode_config), load))
+                                         args.stored_rir_spectra, args.spectrogram, acoustics, episode_config),
+                             load))
             rate, cpu_ms, rss, hit_rate, spectra_rate, faults, read_mib, load = zip(*runs)
             rates[n_envs, camera] = np.median(rate)
             print(f"  {n_envs:2d} env(s), camera {'on ' if camera else 'off'}: "
@@ -271,6 +277,8 @@ def main() -> None:
     parser.add_argument("--only-fresh", action="store_true",
                         help="only the fresh-render figure (also runs against older BatchEnv versions)")
     parser.add_argument("--skip-sanity", action="store_true")
+    parser.add_argument("--spectrogram", action="store_true",
+                        help="EnvConfig(spectrogram=True): the log-magnitude observation (off by default, as here)")
     args = parser.parse_args()
     acoustics = AcousticsConfig() if args.rir_length is None else AcousticsConfig(rir_length=args.rir_length)
     library, which = open_library()
@@ -286,7 +294,7 @@ def main() -> None:
     if not args.only_fresh:
         throughputs(args, acoustics, episode_config)
     load = os.getloadavg()[0]
-    fresh, fft, n_fft = in_process(fresh_render, args.stored_rir_spectra, acoustics, episode_config)
+    fresh, fft, n_fft = in_process(fresh_render, args.stored_rir_spectra, args.spectrogram, acoustics, episode_config)
     print(f"fresh render (16 envs rendering every step, camera on, 1 thread, stored RIR spectra "
           f"{'on' if args.stored_rir_spectra else 'off'}, best of 5 blocks, load "
           f"average {load:.1f}): {fresh:.2f} ms CPU per env step; its bare FFT work "
