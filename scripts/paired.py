@@ -13,8 +13,9 @@ are read as one set, so runs of the same episodes compare too. A controller that
 two files counts once if both runs agree (the same actions and scores, e.g. the reference evaluated
 beside each). Where they differ (say, two policy checkpoints behind one name), ``--tags`` names each
 file's run: that controller becomes ``<controller>:<tag>`` per file; without tags it is an error.
-Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a reference). ``--png`` draws the differences as a forest plot (one panel per reference and
-task, each controller's mean and 95% CI per sound split).
+Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a reference).
+``--png`` draws the differences as a forest plot (one panel per reference and task, each controller's
+mean and 95% CI per sound split).
 """
 
 from __future__ import annotations

@@ -639,7 +639,7 @@ class BatchEnv:
         cache = self._pose_cache[slot]
         stored = cache.store(key, render)
         spectrogram = self._place(row, slot, render, None, outputs, fresh=True)
-        if stored is not None and spectrogram is not None and self._cached_spectrograms:
+        if stored is not None and self._cached_spectrograms:   # then _place computed it
             cache.spectrograms[stored] = spectrogram
 
     def _place_cached(self, row: int, slot: int, entry: int,
