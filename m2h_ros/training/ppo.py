@@ -78,7 +78,7 @@ import torch.nn.functional as F  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.agents.rollout import controller_observation  # noqa: E402
-from m2h_ros.core.audio.stft import stft, to_slices  # noqa: E402
+from m2h_ros.core.audio.stft import to_slices  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
@@ -91,7 +91,7 @@ from m2h_ros.models.policy import (PRESET_NAMES, PolicyConfig, PolicyInputs, Pol
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
 from m2h_ros.training.pretrain_separator import _machine  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
-from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward  # noqa: E402
+from m2h_ros.training.rewards import QUALITY_REWARDS, PendingQuality, QualityTracker  # noqa: E402
 from m2h_ros.training.distributed import all_reduce_mean, all_reduce_sum, init_distributed  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.location import location_head, location_loss, target_offsets  # noqa: E402
@@ -309,6 +309,16 @@ class _Rollout:
     offsets: list[torch.Tensor] = field(default_factory=list)  # (N, 2): the target's (forward, left) metres
 
 
+@dataclass(frozen=True)
+class _StepReward:
+    """A step's reward, known (``reward``) or being computed (``quality``), and its episode ends."""
+
+    ended: np.ndarray  # slots whose episode the step ended
+    success: np.ndarray | None  # (N,) with the step's final_info when an episode ended
+    reward: np.ndarray | None = None
+    quality: PendingQuality | None = None
+
+
 class PPOTrainer:
     """The state of one training worker and its loop (``run``); see the module docstring."""
 
@@ -347,6 +357,8 @@ class PPOTrainer:
         # Microphone noise makes every observation new: nothing to reuse then.
         self.runner = SeparatorRunner(self.loaded, config.n_envs,
                                       pose_cache=0 if config.env.mic_noise > 0 else SEPARATOR_POSE_CACHE)
+        self.quality = QualityTracker(config.quality_reward, final_weight=config.final_weight, config=self.loaded.stft,
+                                      threaded=config.spec.reward == "quality")
         self.actions = torch.from_numpy(self.policy_config.env_actions())
         self.rollout_inputs = policy_input_buffers(self.policy_config, steps=config.n_steps, slots=config.n_envs)
         self.generator = torch.Generator().manual_seed(config.seed * 1_000_003 + self.rank)
@@ -365,8 +377,6 @@ class PPOTrainer:
         self.starts = np.ones(n, bool)
         self.hidden = self.net.initial_hidden(n)
         self.returns, self.lengths = np.zeros(n), np.zeros(n, np.int64)
-        self.target_wave = info["target_monaural"].copy()
-        self._target_spectra()
         self.visits = np.zeros((n, self.env.max_nodes), np.int64)
         self.visits[np.arange(n), self.obs["node"]] = 1
         self.last_classes = self._classes()
@@ -375,8 +385,7 @@ class PPOTrainer:
         # The memory each slot's current estimate was refined with, which f^R trains on (all slots
         # start afresh here); kept only while f^R trains.
         self.previous_memory = torch.zeros_like(self.runner.memory) if self.refining else None
-        self.measure_now = self._measure(self.separation.refined)
-        self.final_nmse, self.final_quality = np.zeros(n), np.zeros(n)
+        self.quality.start(info["target_monaural"], self.separation.refined)
 
     def _classes(self) -> np.ndarray:
         return self.runner.class_indices([e.target_category for e in self.env.current_episodes])
@@ -398,6 +407,7 @@ class PPOTrainer:
         cfg, s = self.config, self.loaded.config.n_freq_slices
         rollout, finished = _Rollout(self.rollout_inputs), []
         self.hidden_start = self.hidden.clone()
+        pending: _StepReward | None = None  # the last step's reward: settled after the next step's separation
         for t in range(cfg.n_steps):
             tick = time.perf_counter()
             inputs = self._inputs(self.obs, self.separation, out=rollout.inputs.index(t))  # written in place: no stack
@@ -424,10 +434,12 @@ class PPOTrainer:
                 rollout.memory.append(self.previous_memory.cpu().clone(memory_format=torch.channels_last))
                 sliced = self.separation.sliced
                 rollout.monaural.append(_sliced(self.separation.monaural if sliced is None else sliced.monaural, s))
-                rollout.target.append(_sliced(self.target_mag, s))
+                rollout.target.append(_sliced(self.quality.mag, s))
             tock = time.perf_counter()
             self.times[2] += tock - tick
 
+            if pending is not None and pending.quality is not None:
+                pending.quality.start()  # the last step's measures, beside the env's (mostly one-threaded) step
             obs, env_reward, terminated, truncated, info = self.env.step(self.actions[action].numpy())
             done = terminated | truncated
             tick = time.perf_counter()
@@ -441,25 +453,20 @@ class PPOTrainer:
                                          np.zeros(len(ended), bool), rows=ended, keys=_poses(final_obs, ended))
             previous_memory = self.runner.memory.clone() if self.refining else None  # refines this estimate
             separation = self.runner.step(obs["audio"], classes, done, keys=_poses(obs))
-            reward = self._reward(obs, info, env_reward, separation, final, ended)
+            step_reward = self._reward(obs, info, env_reward, separation, final, ended)
+            if pending is not None:
+                self._settle(pending, rollout, finished)
+            pending = step_reward
             self.last_classes = classes
             self.times[1] += time.perf_counter() - tick
 
-            self.returns += reward
-            self.lengths += 1
-            for slot in ended.tolist():
-                record = {"return": float(self.returns[slot]), "length": int(self.lengths[slot]),
-                          "success": float(info["final_info"]["success"][slot])}
-                if self.config.spec.reward == "quality":
-                    record["final_nmse"] = float(self.final_nmse[slot])
-                    record["final_quality"] = float(self.final_quality[slot])
-                finished.append(record)
-            self.returns[ended], self.lengths[ended] = 0.0, 0
-            rollout.rewards.append(torch.from_numpy(reward.astype(np.float32)))
             rollout.dones.append(torch.from_numpy(done.copy()))
             self.obs, self.separation, self.starts = obs, separation, done.copy()
             self.previous_memory = previous_memory
             self.env_steps += cfg.n_envs * self.world
+        tick = time.perf_counter()
+        self._settle(pending, rollout, finished)
+        self.times[1] += time.perf_counter() - tick
         tick = time.perf_counter()
         with torch.no_grad():
             inputs = self._inputs(self.obs, self.separation).to(self.device)
@@ -468,11 +475,12 @@ class PPOTrainer:
         return rollout, next_value, finished
 
     def _reward(self, obs: dict, info: dict, env_reward: np.ndarray, separation: SeparationStep,
-                final: SeparationStep | None, ended: np.ndarray) -> np.ndarray:
-        """The kind's reward of the step just taken; updates the per-episode reward state."""
+                final: SeparationStep | None, ended: np.ndarray) -> _StepReward:
+        """The kind's reward of the step just taken (pi^Q's: submitted to ``self.quality``, settled later)."""
         kind = self.config.spec.reward
+        success = info["final_info"]["success"].copy() if len(ended) else None
         if kind == "navigation":
-            return env_reward.astype(np.float64)
+            return _StepReward(ended, success, reward=env_reward.astype(np.float64))
         if kind == "novelty":
             nodes = obs["node"].copy()
             if len(ended):
@@ -482,42 +490,27 @@ class PPOTrainer:
             reward = 1.0 / np.sqrt(self.visits[rows, nodes])
             self.visits[ended] = 0
             self.visits[ended, obs["node"][ended]] = 1
-            return reward
-        # quality: the refined estimate's improvement; + w x the measure at the last step.
-        cfg = self.config
-        refined = separation.refined.copy()
+            return _StepReward(ended, success, reward=reward)
+        refined = separation.refined.copy()  # the estimate after the step: an ended episode's last one
         if final is not None:
             refined[ended] = final.refined
-        after = self._measure(refined)
-        last = np.zeros(len(after), bool)
-        last[ended] = True
-        reward = quality_reward(cfg.quality_reward, self.measure_now, after, last, final_weight=cfg.final_weight)
-        self.final_quality = after
-        self.final_nmse = after if cfg.quality_reward == "nmse" else nmse(refined, self.target_mag)
-        if len(ended):
-            self.target_wave[ended] = info["target_monaural"][ended]
-            self._target_spectra(ended)
-        # Slots that go on keep their estimate and target: only the new episodes' measure is new.
-        self.measure_now = after.copy()
-        if len(ended):
-            self.measure_now[ended] = self._measure(separation.refined[ended], ended)
-        return reward
+        pending = self.quality.submit(refined, ended, separation.refined[ended], info["target_monaural"][ended])
+        return _StepReward(ended, success, quality=pending)
 
-    def _measure(self, refined: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """The reward's quality measure of the estimates of slots ``rows`` against their current targets."""
-        return quality_measure(self.config.quality_reward, refined, target_spec=self.target_spec[rows],
-                               target_mag=self.target_mag[rows], target_wave=self.target_wave[rows],
-                               config=self.loaded.stft)
-
-    def _target_spectra(self, rows: np.ndarray | None = None) -> None:
-        """The STFT and magnitude of the slots' targets (``rows``; all when None) from ``target_wave``,
-        kept for the episode: the reward rebuilds every step's estimate with the target's phase."""
-        if rows is None:
-            self.target_spec = stft(self.target_wave, config=self.loaded.stft)
-            self.target_mag = np.abs(self.target_spec)
-        else:
-            self.target_spec[rows] = stft(self.target_wave[rows], config=self.loaded.stft)
-            self.target_mag[rows] = np.abs(self.target_spec[rows])
+    def _settle(self, step: _StepReward, rollout: _Rollout, finished: list[dict[str, float]]) -> None:
+        """Account a step's reward (in step order): the rollout's rewards, returns, finished episodes."""
+        reward = step.reward if step.quality is None else self.quality.settle(step.quality)
+        self.returns += reward
+        self.lengths += 1
+        for slot in step.ended.tolist():
+            record = {"return": float(self.returns[slot]), "length": int(self.lengths[slot]),
+                      "success": float(step.success[slot])}
+            if step.quality is not None:
+                record["final_nmse"] = float(self.quality.final_nmse[slot])
+                record["final_quality"] = float(self.quality.final_quality[slot])
+            finished.append(record)
+        self.returns[step.ended], self.lengths[step.ended] = 0.0, 0
+        rollout.rewards.append(torch.from_numpy(reward.astype(np.float32)))
 
     # ------------------------------------------------------------------ update
     def _decay(self) -> float:
@@ -644,10 +637,8 @@ class PPOTrainer:
             "previous_memory": None if self.previous_memory is None else self.previous_memory.cpu(),
             "hidden": self.hidden.cpu(),
             "episode": _to_tensors({"starts": self.starts, "returns": self.returns, "lengths": self.lengths,
-                                    "visits": self.visits,
-                                    "target_wave": self.target_wave, "measure_now": self.measure_now,
-                                    "final_nmse": self.final_nmse, "final_quality": self.final_quality,
-                                    "last_classes": self.last_classes}),
+                                    "visits": self.visits, "last_classes": self.last_classes,
+                                    **self.quality.state()}),
         }
 
     def _restore(self, state: dict[str, Any]) -> None:
@@ -681,10 +672,9 @@ class PPOTrainer:
         self.previous_memory = None if previous is None else previous.to(self.device)
         self.hidden = state["hidden"].to(self.device)
         episode = _to_arrays(state["episode"])
-        for key in ("starts", "returns", "lengths", "target_wave", "visits", "measure_now", "final_nmse",
-                    "final_quality", "last_classes"):
+        for key in ("starts", "returns", "lengths", "visits", "last_classes"):
             setattr(self, key, episode[key])
-        self._target_spectra()
+        self.quality.restore(episode)
 
     def _write(self) -> Path:
         """Checkpoint: this worker's resume state; rank 0 also the policy, separator, log and curve."""

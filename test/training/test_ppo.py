@@ -1,5 +1,5 @@
-"""PPO on a tiny config: each quality reward has the right size on a constructed estimate and telescopes
-to the episode's change of its measure, GAE matches a hand computation, a run writes loadable
+"""PPO on a tiny config: each quality reward has the right size on a constructed estimate, is the same
+computed on the tracker's worker thread as in line, and telescopes to the episode's change of its measure, GAE matches a hand computation, a run writes loadable
 checkpoints and logs, a resumed run equals an uninterrupted one, and experiment 6 (m2h_ros/experiments/
 reward.py) reads finished runs with their training time and refuses runs that differ in more than the reward."""
 
@@ -20,7 +20,7 @@ from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
 from m2h_ros.training.ppo import PPOConfig, PPOTrainer, build_parser, config_from_args, gae, train
-from m2h_ros.training.rewards import QUALITY_REWARDS, nmse, quality_measure, quality_reward
+from m2h_ros.training.rewards import QUALITY_REWARDS, QualityTracker, nmse, quality_measure, quality_reward
 
 TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)  # as separator_path's
 STEPS = 4
@@ -118,12 +118,52 @@ def test_each_quality_reward_has_the_size_of_its_measures_improvement():
 
 
 @pytest.mark.parametrize("name", QUALITY_REWARDS)
+def test_the_quality_trackers_threaded_rewards_are_the_in_line_ones(name):
+    """Steps submitted two ahead of their settling (episodes ending in between replace the targets the
+    pending steps read) give the rewards of measuring in line, bit for bit, and those are each step's
+    change of the measure against the episode's target."""
+    rng = np.random.default_rng(1)
+    n, config = 3, DEFAULT_STFT
+    waves = rng.standard_normal((12, n, config.clip_samples)).astype(np.float32)
+    magnitudes = np.abs(stft(waves[0]))
+    steps = [(np.abs(magnitudes * rng.uniform(0.5, 1.5, magnitudes.shape)).astype(np.float32),
+              np.array(ended, np.int64)) for ended in ([], [1], [], [0, 2], [0, 1, 2], [])]
+    threaded, in_line = (QualityTracker(name, final_weight=2.0, config=config, threaded=flag) for flag in (True, False))
+    for tracker in (threaded, in_line):
+        tracker.start(waves[0], magnitudes)
+    measure, targets = in_line.measure_now.copy(), waves[0].copy()
+    pending, got, expected = [], [], []
+    for k, (estimate, ended) in enumerate(steps):
+        fresh = estimate[ended] * 0.9
+        pending.append(threaded.submit(estimate, ended, fresh, waves[k + 1][: len(ended)]))
+        if k % 2:
+            pending[-1].start()  # runs beside the next submit, which replaces ended slots' targets; others start late
+        expected.append(in_line.settle(in_line.submit(estimate, ended, fresh, waves[k + 1][: len(ended)])))
+        if len(pending) == 2:
+            got.append(threaded.settle(pending.pop(0)))
+        after = quality_measure(name, estimate, target_spec=stft(targets), target_mag=np.abs(stft(targets)),
+                                target_wave=targets, config=config)
+        sign, last = (-1.0 if name == "nmse" else 1.0), np.isin(np.arange(n), ended)
+        np.testing.assert_allclose(expected[-1], sign * (after - measure) + sign * 2.0 * after * last, rtol=1e-6)
+        targets[ended] = waves[k + 1][: len(ended)]
+        measure = after.copy()
+        if len(ended):
+                measure[ended] = quality_measure(name, fresh, target_spec=stft(targets[ended]),
+                                             target_mag=np.abs(stft(targets[ended])), target_wave=targets[ended],
+                                             config=config)
+    got.append(threaded.settle(pending.pop()))
+    np.testing.assert_array_equal(np.array(got), np.array(expected))
+    for key, value in in_line.state().items():
+        np.testing.assert_array_equal(threaded.state()[key], value, err_msg=key)
+
+
+@pytest.mark.parametrize("name", QUALITY_REWARDS)
 def test_quality_rewards_telescope_to_the_episodes_change(name, fast_env, separator_path, folder_library, tmp_path):
     trainer = PPOTrainer(tiny(fast_env, separator_path, quality_reward=name), folder_library, out_dir=tmp_path,
                          progress=False)
     try:
         trainer._begin()
-        first = trainer.measure_now.copy()
+        first = trainer.quality.measure_now.copy()
         rollout, _, finished = trainer._collect()  # n_steps == episode length: every slot ends at the last step
     finally:
         trainer.env.close()
