@@ -1,0 +1,67 @@
+#!/usr/bin/env python3
+"""Summary of PPO training runs from their log.csv (one row per update): env steps, the rate of the
+updates (median, and of the first and last 100), and the mean of a few figures over the last updates.
+
+    python scripts/run_summary.py runs/pq_2h_s17/stage1 runs/pq_2h_s17/stage2 [--last 250]
+
+A run directory or its log.csv. A figure the run's kind does not log (empty or nan) prints as "-".
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import statistics
+import sys
+from pathlib import Path
+
+RATE_WINDOW = 100
+MEAN_COLUMNS = ("return_window", "location_error_m", "success_window")
+
+
+def read_log(path: Path) -> list[dict[str, str]]:
+    log = path / "log.csv" if path.is_dir() else path
+    if not log.is_file():
+        raise SystemExit(f"run_summary: no training log at {log}")
+    with open(log, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows or "sps" not in rows[0]:
+        raise SystemExit(f"run_summary: {log} holds no PPO log rows (a header with 'sps' and one row per update)")
+    return rows
+
+
+def mean_of_last(rows: list[dict[str, str]], column: str) -> float:
+    values = [float(row[column]) for row in rows if row.get(column) not in (None, "")]
+    values = [value for value in values if not math.isnan(value)]
+    return statistics.fmean(values) if values else math.nan
+
+
+def summary(rows: list[dict[str, str]], *, last: int) -> dict[str, float]:
+    rates = [float(row["sps"]) for row in rows]
+    figures = {"updates": len(rows), "env_steps": int(rows[-1]["env_steps"]),
+               "median_sps": statistics.median(rates),
+               f"first_{RATE_WINDOW}_sps": statistics.median(rates[:RATE_WINDOW]),
+               f"last_{RATE_WINDOW}_sps": statistics.median(rates[-RATE_WINDOW:])}
+    figures.update({f"{column}_last_{last}": mean_of_last(rows[-last:], column) for column in MEAN_COLUMNS})
+    return figures
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="run directories (or their log.csv)")
+    parser.add_argument("--last", type=int, default=250, help="updates the means are taken over")
+    args = parser.parse_args(argv)
+    tables = {str(run): summary(read_log(run), last=args.last) for run in args.runs}
+    columns = list(next(iter(tables.values())))
+    print("| run | " + " | ".join(columns) + " |")
+    print("|---" * (len(columns) + 1) + "|")
+    for run, figures in tables.items():
+        cells = ["-" if isinstance(v, float) and math.isnan(v) else f"{v:.2f}" if isinstance(v, float) else str(v)
+                 for v in figures.values()]
+        print(f"| {run} | " + " | ".join(cells) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
