@@ -28,17 +28,17 @@ set +eu  # env.sh sources colcon's setup.bash, which is not written for errexit/
 source "$ROOT/env.sh"
 set -eu
 cd "$ROOT"
+# The flags both stages share are the recipe file's (params/recipes/policy_KIND.args, also what
+# scripts/bench/train.py --shipped-quality times); each stage adds its own.
+recipe=@params/recipes/policy_$KIND.args
 if [ "$KIND" = quality ]; then
-  common=(--kind quality --n-envs 32 --episodes 10000 --frozen-refiner --threads "$THREADS" --quality-reward si_sdr
-          --final-weight 0 --lr 3e-4 --location-coef 1 --checkpoint-every 50)
-  python scripts/train_policy.py "${common[@]}" --updates 1600 --seed 0 --out "$OUT/stage1"
-  python scripts/train_policy.py "${common[@]}" --updates 1000 --seed 1 --init-policy "$OUT/stage1/policy.pt" \
-      --out "$OUT/stage2"
+  python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 1600 --seed 0 --out "$OUT/stage1"
+  python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 1000 --seed 1 \
+      --init-policy "$OUT/stage1/policy.pt" --out "$OUT/stage2"
   echo "[train_shipped] pi^Q: $OUT/stage2/policy.pt"
 else
-  common=(--kind navigation --updates 1500 --episodes 10000 --seed 0 --threads "$THREADS" --lr 3e-4 --teacher-coef 1
-          --checkpoint-every 50)
-  python scripts/train_policy.py "${common[@]}" --out "$OUT/stage1"
-  python scripts/train_policy.py "${common[@]}" --init-policy "$OUT/stage1/policy.pt" --out "$OUT/stage2"
+  python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT/stage1"
+  python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
+      --out "$OUT/stage2"
   echo "[train_shipped] pi^N + Stop: $OUT/stage2/policy.pt"
 fi

@@ -780,8 +780,18 @@ def train(config: PPOConfig, library: SoundLibrary, *, out_dir: Path, rir_cache_
         trainer.env.close()
 
 
+class _RecipeArgumentParser(argparse.ArgumentParser):
+    """Reads ``@FILE`` arguments (the shipped recipes in ``params/recipes/``) as shell words, '#' a comment."""
+
+    def convert_arg_line_to_args(self, arg_line: str) -> list[str]:
+        return shlex.split(arg_line, comments=True)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description="Train a learned controller with PPO (DD-PPO under torchrun).")
+    parser = _RecipeArgumentParser(
+        description="Train a learned controller with PPO (DD-PPO under torchrun). @FILE reads arguments from FILE "
+                    "(e.g. @params/recipes/policy_quality.args, the shipped pi^Q's); later ones override it.",
+        fromfile_prefix_chars="@")
     parser.add_argument("--kind", required=True, choices=sorted(KINDS))
     parser.add_argument("--preset", default="compact", choices=PRESET_NAMES)
     parser.add_argument("--updates", type=int, default=PPOConfig.updates)

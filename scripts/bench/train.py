@@ -3,7 +3,7 @@ of an update's wall time spent in the simulator, the separator (f^B, f^M, f^R in
 (policy inputs + forward), the PPO update and the f^R update (quality only).
 
     python scripts/bench/train.py [--kind quality] [--updates 4] [--repeats 3] [--n-envs 16] [--threads 2]
-    python scripts/bench/train.py --shipped-quality    # the shipped pi^Q's recipe (scripts/train_shipped.sh)
+    python scripts/bench/train.py --shipped-quality    # the shipped pi^Q's recipe (params/recipes/policy_quality.args)
 
 Each repeat is a fresh trainer (16 slots x 20 steps per update, camera on, the shipped compact
 separator, the full sound library) on near-target (far-target for navigation kinds) test episodes,
@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import os
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +30,11 @@ from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.machine import availability_line
-from m2h_ros.training.ppo import KINDS, TIMED_PARTS, PPOConfig, PPOTrainer
+from m2h_ros.training.ppo import KINDS, TIMED_PARTS, PPOConfig, PPOTrainer, build_parser, config_from_args
 from m2h_ros.training.rewards import QUALITY_REWARDS
+
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED_QUALITY_RECIPE = ROOT / "params" / "recipes" / "policy_quality.args"
 
 
 def main() -> None:
@@ -48,22 +52,28 @@ def main() -> None:
     parser.add_argument("--quality-reward", default=PPOConfig.quality_reward, choices=QUALITY_REWARDS)
     parser.add_argument("--location-coef", type=float, default=PPOConfig.location_coef)
     parser.add_argument("--shipped-quality", action="store_true",
-                        help="the shipped pi^Q's settings: 32 slots, f^R frozen, SI-SDR reward, location term 1")
+                        help=f"the shipped pi^Q's recipe ({SHIPPED_QUALITY_RECIPE.relative_to(ROOT)}: 32 slots, "
+                             "f^R frozen, SI-SDR reward, location term 1); of the options above only --updates, "
+                             "--repeats, --n-steps and --threads then apply")
     args = parser.parse_args()
-    if args.shipped_quality:
-        args.kind, args.n_envs, args.frozen_refiner, args.quality_reward, args.location_coef = \
-            "quality", 32, True, "si_sdr", 1.0
     library = SoundLibrary.load()
     episodes = EpisodeConfig(task=KINDS[args.kind].task, scene_split="test", sound_split="heard", count=200)
-    config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes, env=EnvConfig(camera=not args.no_camera),
-                       n_envs=args.n_envs, n_steps=args.n_steps, updates=args.updates, threads=args.threads,
-                       refiner_epochs=args.refiner_epochs, train_refiner=False if args.frozen_refiner else None,
-                       quality_reward=args.quality_reward, location_coef=args.location_coef,
-                       checkpoint_every=args.updates + 1)
-    print(f"PPO {args.kind}, {args.preset} policy, {args.n_envs} slots x {args.n_steps} steps per update, "
-          f"camera {'off' if args.no_camera else 'on'}, f^R trained: {config.refiner_trained} "
-          f"({args.refiner_epochs} passes), {args.quality_reward} reward, location term {args.location_coef}, "
-          f"{args.threads} torch threads, {os.cpu_count()} CPUs")
+    if args.shipped_quality:
+        recipe = config_from_args(build_parser().parse_args([f"@{SHIPPED_QUALITY_RECIPE}"]))
+        episodes = replace(episodes, task=recipe.episodes.task)
+        config = replace(recipe, episodes=episodes, n_steps=args.n_steps, updates=args.updates, threads=args.threads,
+                         checkpoint_every=args.updates + 1)
+    else:
+        config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
+                           env=EnvConfig(camera=not args.no_camera), n_envs=args.n_envs, n_steps=args.n_steps,
+                           updates=args.updates, threads=args.threads, refiner_epochs=args.refiner_epochs,
+                           train_refiner=False if args.frozen_refiner else None,
+                           quality_reward=args.quality_reward, location_coef=args.location_coef,
+                           checkpoint_every=args.updates + 1)
+    print(f"PPO {config.kind}, {config.preset} policy, {config.n_envs} slots x {config.n_steps} steps per update, "
+          f"camera {'on' if config.env.camera else 'off'}, f^R trained: {config.refiner_trained} "
+          f"({config.refiner_epochs} passes), {config.quality_reward} reward, location term {config.location_coef}, "
+          f"{config.threads} torch threads, {os.cpu_count()} CPUs")
     print(availability_line())
     for repeat in range(args.repeats):
         before = os.getloadavg()[0]

@@ -5,6 +5,7 @@ reward.py) reads finished runs with their training time and refuses runs that di
 
 import csv
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -60,6 +61,25 @@ def test_the_command_line_sets_the_final_weight_and_learning_rate():
         config_from_args(parser.parse_args(["--kind", "quality", "--final-weight", "-1"]))
     with pytest.raises(ConfigError, match="lr"):
         config_from_args(parser.parse_args(["--kind", "quality", "--lr", "2"]))
+
+
+def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
+    root = Path(__file__).resolve().parents[2]
+    monkeypatch.chdir(root)  # as scripts/train_shipped.sh runs them
+    parser = build_parser()
+    stage2 = config_from_args(parser.parse_args(["@params/recipes/policy_quality.args", "--threads", "2", "--updates",
+                                                 "1000", "--seed", "1", "--init-policy", "stage1/policy.pt"]))
+    assert (stage2.kind, stage2.n_envs, stage2.episodes.count, stage2.train_refiner, stage2.quality_reward) == \
+        ("quality", 32, 10000, False, "si_sdr")
+    assert (stage2.final_weight, stage2.lr, stage2.location_coef, stage2.checkpoint_every) == (0.0, 3e-4, 1.0, 50)
+    assert (stage2.threads, stage2.updates, stage2.seed, stage2.init_policy) == (2, 1000, 1, "stage1/policy.pt")
+    navigation = config_from_args(parser.parse_args(["@params/recipes/policy_navigation.args", "--lr", "1e-4"]))
+    assert (navigation.kind, navigation.updates, navigation.teacher_coef, navigation.episodes.task) == \
+        ("navigation", 1500, 1.0, "far_target")
+    assert navigation.lr == 1e-4  # a flag after the file overrides it
+    with pytest.raises(SystemExit):
+        parser.parse_args(["@params/recipes/no_such_recipe.args"])
+    assert "no_such_recipe.args" in capsys.readouterr().err
 
 
 def test_gae_matches_a_hand_computation():
