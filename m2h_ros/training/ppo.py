@@ -803,8 +803,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,
                         help="passes of f^R's L1 per update (quality)")
-    parser.add_argument("--frozen-refiner", action="store_true",
-                        help="keep the separator's f^R as it is (quality trains it by default)")
+    parser.add_argument("--frozen-refiner", action=argparse.BooleanOptionalAction, default=False,
+                        help="keep the separator's f^R as it is (quality trains it by default; --no-frozen-refiner "
+                             "after a recipe that freezes it trains it)")
     parser.add_argument("--quality-reward", default=PPOConfig.quality_reward, choices=QUALITY_REWARDS,
                         help="quality: the measure whose improvement is the reward (nmse: the original's)")
     parser.add_argument("--final-weight", type=float, default=PPOConfig.final_weight,

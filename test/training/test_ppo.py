@@ -77,6 +77,8 @@ def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
     assert (navigation.kind, navigation.updates, navigation.teacher_coef, navigation.episodes.task) == \
         ("navigation", 1500, 1.0, "far_target")
     assert navigation.lr == 1e-4  # a flag after the file overrides it
+    refiner_stage = config_from_args(parser.parse_args(["@params/recipes/policy_quality.args", "--no-frozen-refiner"]))
+    assert refiner_stage.refiner_trained and not stage2.refiner_trained
     with pytest.raises(SystemExit):
         parser.parse_args(["@params/recipes/no_such_recipe.args"])
     assert "no_such_recipe.args" in capsys.readouterr().err
