@@ -30,11 +30,11 @@ from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.machine import availability_line
+from m2h_ros.paths import REPO_DIR
 from m2h_ros.training.ppo import KINDS, TIMED_PARTS, PPOConfig, PPOTrainer, build_parser, config_from_args
 from m2h_ros.training.rewards import QUALITY_REWARDS
 
-ROOT = Path(__file__).resolve().parents[2]
-SHIPPED_QUALITY_RECIPE = ROOT / "params" / "recipes" / "policy_quality.args"
+SHIPPED_QUALITY_RECIPE = REPO_DIR / "params" / "recipes" / "policy_quality.args"
 
 
 def main() -> None:
@@ -52,7 +52,7 @@ def main() -> None:
     parser.add_argument("--quality-reward", default=PPOConfig.quality_reward, choices=QUALITY_REWARDS)
     parser.add_argument("--location-coef", type=float, default=PPOConfig.location_coef)
     parser.add_argument("--shipped-quality", action="store_true",
-                        help=f"the shipped pi^Q's recipe ({SHIPPED_QUALITY_RECIPE.relative_to(ROOT)}: 32 slots, "
+                        help=f"the shipped pi^Q's recipe ({SHIPPED_QUALITY_RECIPE.relative_to(REPO_DIR)}: 32 slots, "
                              "f^R frozen, SI-SDR reward, location term 1); of the options above only --updates, "
                              "--repeats, --n-steps and --threads then apply")
     args = parser.parse_args()

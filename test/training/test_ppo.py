@@ -5,7 +5,6 @@ reward.py) reads finished runs with their training time and refuses runs that di
 
 import csv
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +19,7 @@ from m2h_ros.experiments import reward
 from m2h_ros.models.checkpoint import load_separator
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
+from m2h_ros.paths import REPO_DIR
 from m2h_ros.training.ppo import PPOConfig, PPOTrainer, build_parser, config_from_args, gae, train
 from m2h_ros.training.rewards import QUALITY_REWARDS, QualityTracker, nmse, quality_measure, quality_reward
 
@@ -64,8 +64,7 @@ def test_the_command_line_sets_the_final_weight_and_learning_rate():
 
 
 def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
-    root = Path(__file__).resolve().parents[2]
-    monkeypatch.chdir(root)  # as scripts/train_shipped.sh runs them
+    monkeypatch.chdir(REPO_DIR)  # as scripts/train_shipped.sh runs them
     parser = build_parser()
     stage2 = config_from_args(parser.parse_args(["@params/recipes/policy_quality.args", "--threads", "2", "--updates",
                                                  "1000", "--seed", "1", "--init-policy", "stage1/policy.pt"]))
