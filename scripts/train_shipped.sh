@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# A shipped policy in one command, fixed seeds, THREADS torch threads (default 2: both cores of the 2-core
-# machines it is sized for; the thread count is part of what makes the weights reproducible on one machine
+# A shipped policy, or the shipped separator's f^R, in one command, fixed seeds, THREADS torch threads
+# (default 2: both cores of the 2-core machines it is sized for; the thread count is part of what makes the weights reproducible on one machine
 # kind, other CPUs round differently and drift); a run or stage that stopped resumes where it stopped, a
 # finished one is not trained again. docs/policies.md has what each learned and how long it took.
 #
@@ -9,36 +9,48 @@
 #               target-location auxiliary task (weight 1): stage 1, 1,600 updates (1,024,000 env steps,
 #               seed 0, about 70 min); stage 2 from its weights, 1,000 updates (640,000 env steps) on
 #               10,000 other episodes (seed 1), a fresh Adam, about 57 min.
+#   refiner:    the shipped separator's f^R ("The shipped pi^Q"): the original's third part of pi^Q's
+#               training, f^R's L1 trained on the shipped pi^Q's trajectories (the policy trains on too, Adam
+#               1e-4; its weights are not shipped), from the pretrained separator: 500 updates (320,000 env
+#               steps, seed 2), about 33 min.
 #   navigation: pi^N + Stop ("The shipped pi^N + Stop"): two stages of 1,500 updates (480,000 env steps
 #               each) kickstarted by the approach teacher; stage 2 starts from stage 1's weights
 #               (--init-policy: a fresh Adam, lr decaying again from 3e-4).
 #
 #     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality; THREADS=1 ... for one thread
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_quality.pt
+#     scripts/train_shipped.sh refiner [OUT]      # default runs/policy_refiner
+#     cp OUT/separator.pt m2h_ros/models/default/separator_compact.pt
 #     scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation.pt
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-KIND=${1:?usage: scripts/train_shipped.sh quality|navigation [OUT]}
+KIND=${1:?usage: scripts/train_shipped.sh quality|refiner|navigation [OUT]}
 OUT=${2:-runs/policy_$KIND}
 THREADS=${THREADS:-2}
-case "$KIND" in quality|navigation) ;; *) echo "unknown policy kind '$KIND' (quality or navigation)" >&2; exit 2 ;; esac
+case "$KIND" in quality|refiner|navigation) ;; *) echo "unknown kind '$KIND' (quality, refiner or navigation)" >&2; exit 2 ;; esac
 "$ROOT/scripts/setup.sh"
 set +eu  # env.sh sources colcon's setup.bash, which is not written for errexit/nounset
 source "$ROOT/env.sh"
 set -eu
 cd "$ROOT"
 # The flags both stages share are the recipe file's (params/recipes/policy_KIND.args, also what
-# scripts/bench/train.py --shipped-quality times); each stage adds its own.
-recipe=@params/recipes/policy_$KIND.args
-if [ "$KIND" = quality ]; then
-  python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 1600 --seed 0 --out "$OUT/stage1"
-  python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 1000 --seed 1 \
-      --init-policy "$OUT/stage1/policy.pt" --out "$OUT/stage2"
-  echo "[train_shipped] pi^Q: $OUT/stage2/policy.pt"
-else
-  python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT/stage1"
-  python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
-      --out "$OUT/stage2"
-  echo "[train_shipped] pi^N + Stop: $OUT/stage2/policy.pt"
-fi
+# scripts/bench/train.py --shipped-quality times); each stage adds its own. The f^R stage is pi^Q's recipe
+# with f^R trained.
+recipe=@params/recipes/policy_${KIND/refiner/quality}.args
+case "$KIND" in
+  quality)
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 1600 --seed 0 --out "$OUT/stage1"
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 1000 --seed 1 \
+        --init-policy "$OUT/stage1/policy.pt" --out "$OUT/stage2"
+    echo "[train_shipped] pi^Q: $OUT/stage2/policy.pt" ;;
+  refiner)
+    python scripts/train_policy.py "$recipe" --no-frozen-refiner --lr 1e-4 --threads "$THREADS" --updates 500 \
+        --seed 2 --checkpoint-every 25 --init-policy m2h_ros/models/default/policy_quality.pt --out "$OUT"
+    echo "[train_shipped] the separator with f^R trained beside pi^Q: $OUT/separator.pt" ;;
+  navigation)
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT/stage1"
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
+        --out "$OUT/stage2"
+    echo "[train_shipped] pi^N + Stop: $OUT/stage2/policy.pt" ;;
+esac

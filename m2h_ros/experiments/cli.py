@@ -4,6 +4,7 @@ the jobs run (local Ray CPUs or a cluster), where the report goes."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shlex
 import sys
 import time
@@ -43,14 +44,22 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
     parser.add_argument("--address", help="an existing Ray cluster ('auto': the one this machine is in)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
     parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / Path(script).stem)
+    parser.add_argument("--separator", type=Path,
+                        help="separator checkpoint of the conditions that name none (default: the shipped one; "
+                             "m2h_ros/models/default/separator_compact_pretrained.pt re-runs a table made before "
+                             "session 19)")
     parser.add_argument("--no-progress", action="store_true")
     add_arguments(parser)
     args = parser.parse_args(argv)
     command = shlex.join(["python", script, *(sys.argv[1:] if argv is None else argv)])
     started = time.perf_counter()
     try:
+        swept = conditions(args)
+        if args.separator:  # absolute: Ray workers run elsewhere
+            swept = [c if c.separator else dataclasses.replace(c, separator=str(args.separator.resolve()))
+                     for c in swept]
         sweep = Sweep(controllers=args.controllers.split(","), tasks=args.task.split(","),
-                      sound_splits=args.sound_split.split(","), conditions=conditions(args), count=args.count,
+                      sound_splits=args.sound_split.split(","), conditions=swept, count=args.count,
                       chunk=args.chunk, seed=args.seed)
         results, rows = run_sweep(sweep, workers=args.workers, address=args.address,
                                   progress=not args.no_progress, desc=Path(script).stem)

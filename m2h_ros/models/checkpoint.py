@@ -36,9 +36,15 @@ from m2h_ros.paths import PACKAGE_DIR
 
 CHECKPOINT_FORMAT = 1
 SEPARATOR_KIND = "m2h_separator"
+# f^B, f^M and f^R pretrained passively: what the shipped policies trained against, and the f^R stage's start.
+PRETRAINED_SEPARATOR_CHECKPOINT = PACKAGE_DIR / "models" / "default" / "separator_compact_pretrained.pt"
+# The pretrained one with f^R trained beside the shipped pi^Q (the original's formulation): what the nodes,
+# the main job and the evaluations run.
 DEFAULT_SEPARATOR_CHECKPOINT = PACKAGE_DIR / "models" / "default" / "separator_compact.pt"
-# The pretraining entry point that writes DEFAULT_SEPARATOR_CHECKPOINT (named in error messages).
-DEFAULT_SEPARATOR_BUILD_COMMAND = "python -m m2h_ros.training.pretrain_separator"
+# The entry points that write them (named in error messages).
+PRETRAINED_SEPARATOR_BUILD_COMMAND = "python -m m2h_ros.training.pretrain_separator"
+DEFAULT_SEPARATOR_BUILD_COMMAND = (f"{PRETRAINED_SEPARATOR_BUILD_COMMAND}, then scripts/train_shipped.sh refiner "
+                                   "(f^R trained beside pi^Q; docs/policies.md)")
 
 _PLAIN_TYPES = (str, int, float, bool, type(None))
 
@@ -181,16 +187,18 @@ def load_separator(path: str | os.PathLike, *, expected_config: SeparatorConfig 
                    map_location: str | torch.device = "cpu") -> LoadedSeparator:
     """Rebuild a Separator from ``path``; ``expected_*`` (when given) must match the stored settings."""
     path = Path(path)
-    if not path.is_file() and path.resolve() == DEFAULT_SEPARATOR_CHECKPOINT.resolve():
-        raise CheckpointError(f"default separator checkpoint {path} not found; build it with "
-                              f"`{DEFAULT_SEPARATOR_BUILD_COMMAND}`")
+    shipped = {DEFAULT_SEPARATOR_CHECKPOINT.resolve(): DEFAULT_SEPARATOR_BUILD_COMMAND,
+               PRETRAINED_SEPARATOR_CHECKPOINT.resolve(): PRETRAINED_SEPARATOR_BUILD_COMMAND}
+    if not path.is_file() and path.resolve() in shipped:
+        raise CheckpointError(f"shipped separator checkpoint {path} not found; build it with "
+                              f"`{shipped[path.resolve()]}`")
     payload = read_checkpoint(path, kind=SEPARATOR_KIND, map_location=map_location)
     require_entries(payload, path, ("stft", "classes"))
     version = payload.get("separator_version", 1)
     if version != SEPARATOR_VERSION:
         raise CheckpointError(f"checkpoint {path} holds a version-{version} separator (other output "
                               f"parameterisation), this code needs version {SEPARATOR_VERSION}; retrain it with "
-                              f"`{DEFAULT_SEPARATOR_BUILD_COMMAND} --out {path}`")
+                              f"`{PRETRAINED_SEPARATOR_BUILD_COMMAND} --out {path}`")
     config, stft_config = model_settings(payload, path, SeparatorConfig)
     classes = tuple(payload["classes"])
     problems: list[str] = []

@@ -691,10 +691,15 @@ class PPOTrainer:
                         "config": self.config.to_dict()}
             save_policy(policy, self.net, policy_kind=self.config.kind, stft_config=self.loaded.stft,
                         metadata=metadata)
-            if self.refining:
-                save_separator(self.out_dir / "separator.pt", self.separator, classes=self.loaded.classes,
-                               stft_config=self.loaded.stft,
-                               metadata={**self.loaded.metadata, "refiner_trained_with": str(policy)})
+            if self.refining:  # the separator it started from, and how this run trained its f^R
+                refiner_run = {key: metadata[key] for key in ("command", "updates", "env_steps", "wall_seconds",
+                                                              "machine", "separator")}
+                separator_metadata = {**self.loaded.metadata,
+                                      "refiner_trained_with": {**refiner_run, "policy": str(policy)}}
+                separator = save_separator(self.out_dir / "separator.pt", self.separator,
+                                           classes=self.loaded.classes, stft_config=self.loaded.stft,
+                                           metadata=separator_metadata)
+                separator.with_suffix(".json").write_text(json.dumps(separator_metadata, indent=1) + "\n")
             with open(self.out_dir / "log.csv", "w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=list(self.history[0]))
                 writer.writeheader()

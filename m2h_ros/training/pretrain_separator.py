@@ -64,7 +64,7 @@ from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa:
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.device import DEVICES, check_device, training_device
-from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
+from m2h_ros.models.checkpoint import PRETRAINED_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import BACKBONES, PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
@@ -490,7 +490,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="f^B / f^M network (default unet; mmdensenet: experiment 5, its own compact width)")
     parser.add_argument("--seed", type=int, default=0, help="weights")
     parser.add_argument("--data-seed", type=int, default=0, help="training streams (validation set: fixed)")
-    parser.add_argument("--out", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="checkpoint path")
+    parser.add_argument("--out", type=Path, default=PRETRAINED_SEPARATOR_CHECKPOINT, help="checkpoint path")
     parser.add_argument("--epochs", type=int, default=defaults.epochs, help="stage 1 (f^B + f^M) epochs")
     parser.add_argument("--batches-per-epoch", type=int, default=defaults.batches_per_epoch,
                         help=f"stage 1 batches of {defaults.train_data.batch_size} observations per epoch")

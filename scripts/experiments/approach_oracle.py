@@ -2,11 +2,11 @@
 """Diagnostic: what walking to the target's node gains over standing still, with ground-truth knowledge.
 
     python scripts/experiments/approach_oracle.py [--task near_target] [--sound-split heard,unheard]
-        [--count 500] [--threads 2] [--out docs/results/approach_oracle]
+        [--count 500] [--threads 2] [--checkpoint SEPARATOR] [--out docs/results/approach_oracle]
 
 Plays Stand In-Place and :class:`m2h_ros.experiments.oracle.ApproachOracle` (a shortest path to the
 target's node, read from the episode file, then holding there) on the same test episodes with the
-shipped separator, and writes the paper-style table with the oracle's paired difference to Stand
+shipped separator (or --checkpoint), and writes the paper-style table with the oracle's paired difference to Stand
 In-Place. It bounds what a policy that learns to approach the target can gain here: the issue's
 near-target target for Move2Hear is Stand In-Place + 1.5 dB.
 """
@@ -32,7 +32,7 @@ from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
 from m2h_ros.experiments.oracle import ApproachOracle  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
+from m2h_ros.paths import REPO_DIR, file_sha256, repo_relative  # noqa: E402
 
 REFERENCE = "stand_in_place"
 
@@ -44,6 +44,7 @@ def main(argv=None) -> int:
     parser.add_argument("--count", type=int, default=500, help="first test episodes per sound split")
     parser.add_argument("--slots", type=int, default=16)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="separator checkpoint")
     parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "approach_oracle")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
@@ -54,7 +55,7 @@ def main(argv=None) -> int:
         if any(s not in SOUND_SPLITS for s in splits) or args.count < 1 or args.slots < 1 or args.threads < 1:
             raise ConfigError(f"--sound-split must name {SOUND_SPLITS}; --count, --slots, --threads >= 1")
         torch.set_num_threads(args.threads)
-        library, loaded = SoundLibrary.load(), load_separator(DEFAULT_SEPARATOR_CHECKPOINT)
+        library, loaded = SoundLibrary.load(), load_separator(args.checkpoint)
         episodes = [e for split in splits for e in episodes_for(
             EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)[:args.count]]
         slots = min(args.slots, len(episodes))
@@ -68,7 +69,7 @@ def main(argv=None) -> int:
                 "wall_seconds": round(time.perf_counter() - started, 1),
                 "load_average": [round(x, 2) for x in os.getloadavg()]}
         paths = write_results(results, args.out, title=f"Approach oracle vs Stand In-Place, {args.task} test episodes",
-                              meta=meta, command=command, setup=f"separator `{Path(loaded.path).name}` (shipped)",
+                              meta=meta, command=command, setup=f"separator `{repo_relative(loaded.path)}` (sha256 {file_sha256(loaded.path)})",
                               reference=REFERENCE)
     except M2HError as exc:
         print(f"approach_oracle: error: {exc}", file=sys.stderr)

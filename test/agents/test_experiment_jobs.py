@@ -96,3 +96,26 @@ def test_a_condition_passes_its_separator_to_the_jobs(folder_library, fast_acous
     jobs, keys = sweep_jobs(sweep, folder_library)
     assert [(job.condition, job.separator) for job in jobs] == [("shipped", ""), ("other", "/tmp/other.pt")]
     assert [key[3] for key in keys] == [0, 1]
+
+
+def test_the_separator_flag_sets_the_conditions_that_name_none(monkeypatch, tmp_path):
+    from m2h_ros.experiments import cli  # noqa: PLC0415
+
+    seen = []
+
+    def stop_at_the_sweep(sweep, **_):
+        seen.append(sweep)
+        raise ConfigError("stopped before running")
+
+    monkeypatch.setattr(cli, "run_sweep", stop_at_the_sweep)
+
+    def conditions(args):
+        return [Condition(label="own", x=0, separator="/elsewhere/own.pt"), Condition(label="any", x=1)]
+
+    argv = ["--separator", str(tmp_path / "pretrained.pt"), "--out", str(tmp_path)]
+    assert cli.sweep_main(argv, script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
+                          conditions=conditions) == 2
+    assert [c.separator for c in seen[0].conditions] == ["/elsewhere/own.pt", str(tmp_path / "pretrained.pt")]
+    cli.sweep_main(["--out", str(tmp_path)], script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
+                   conditions=conditions)
+    assert [c.separator for c in seen[1].conditions] == ["/elsewhere/own.pt", ""]  # the shipped one

@@ -77,7 +77,13 @@ def test_default_checkpoint_missing_names_the_build_command(monkeypatch: pytest.
     with pytest.raises(CheckpointError, match="pretrain_separator"):
         load_separator(fake_default)
     assert DEFAULT_SEPARATOR_CHECKPOINT.name == "separator_compact.pt"
-    assert "pretrain_separator" in DEFAULT_SEPARATOR_BUILD_COMMAND
+    assert "pretrain_separator" in DEFAULT_SEPARATOR_BUILD_COMMAND and "train_shipped.sh refiner" in \
+        DEFAULT_SEPARATOR_BUILD_COMMAND
+    fake_pretrained = tmp_path / "default" / "separator_compact_pretrained.pt"
+    monkeypatch.setattr("m2h_ros.models.checkpoint.PRETRAINED_SEPARATOR_CHECKPOINT", fake_pretrained)
+    with pytest.raises(CheckpointError, match=r"separator_compact_pretrained.pt not found.*`python -m "
+                                              r"m2h_ros.training.pretrain_separator`"):
+        load_separator(fake_pretrained)
 
 
 def test_wrong_kind(tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ reward.py) reads finished runs with their training time and refuses runs that di
 
 import csv
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.errors import CheckpointError, ConfigError
 from m2h_ros.experiments import reward
-from m2h_ros.models.checkpoint import load_separator
+from m2h_ros.models.checkpoint import PRETRAINED_SEPARATOR_CHECKPOINT, load_separator
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
 from m2h_ros.paths import REPO_DIR
@@ -78,6 +79,9 @@ def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
     assert navigation.lr == 1e-4  # a flag after the file overrides it
     refiner_stage = config_from_args(parser.parse_args(["@params/recipes/policy_quality.args", "--no-frozen-refiner"]))
     assert refiner_stage.refiner_trained and not stage2.refiner_trained
+    # Both train against the passively pretrained separator, not the default one whose f^R trained beside pi^Q.
+    for config in (stage2, navigation, refiner_stage):
+        assert (REPO_DIR / config.separator).resolve() == PRETRAINED_SEPARATOR_CHECKPOINT.resolve()
     with pytest.raises(SystemExit):
         parser.parse_args(["@params/recipes/no_such_recipe.args"])
     assert "no_such_recipe.args" in capsys.readouterr().err
@@ -261,6 +265,9 @@ def test_training_writes_checkpoints_and_resumes_exactly(fast_env, separator_pat
     assert not torch.equal(refined.separator.refiner.body[0].weight, original.separator.refiner.body[0].weight)
     torch.testing.assert_close(refined.separator.monaural_predictor.head.weight,
                                original.separator.monaural_predictor.head.weight)  # f^M frozen
+    stage = refined.metadata["refiner_trained_with"]  # the f^R stage's provenance, also beside it as JSON
+    assert (stage["command"], stage["updates"], stage["env_steps"]) == ("test", 4, 4 * 2 * STEPS)
+    assert json.loads((tmp_path / "whole" / "separator.json").read_text())["refiner_trained_with"] == stage
     with open(tmp_path / "whole" / "log.csv") as f:
         rows = list(csv.DictReader(f))
     assert [int(r["update"]) for r in rows] == [1, 2, 3, 4] and int(rows[-1]["env_steps"]) == 4 * 2 * STEPS
