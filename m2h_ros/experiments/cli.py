@@ -28,11 +28,12 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
                conditions: Callable[[argparse.Namespace], list[Condition]],
                add_arguments: Callable[[argparse.ArgumentParser], None] = lambda parser: None,
                controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target",
-               sound_split: str = "heard,unheard", reference: str | None = None,
+               sound_split: str = "heard,unheard", reference: str | None = "stand_in_place",
                condition_reference: str | None = None) -> int:
     """Parse, run the sweep, write ``docs/results/<script stem>/`` (or --out); 2 on a clear error.
     ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository);
-    ``reference`` / ``condition_reference``: the paired comparisons of :func:`write_sweep`."""
+    ``reference`` / ``condition_reference``: the paired comparisons of :func:`write_sweep` (the reference
+    controller only where the sweep plays it)."""
     script = repo_relative(script)
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--task", default=task, help="near_target, far_target or both comma-separated")

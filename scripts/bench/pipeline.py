@@ -29,9 +29,7 @@ from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.node_configs import PIPELINE_NODES, SimConfig  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[2]
-
+from m2h_ros.paths import REPO_DIR  # noqa: E402
 
 NODES = ("sim_node", *PIPELINE_NODES)
 
@@ -54,7 +52,7 @@ def through_graph(episodes: int, controller: str) -> tuple[float, str, int, dict
     """Steps per second the sim reports (first publication to last answer), separator latency line,
     steps played, CPU seconds of each node since its first message."""
     with tempfile.TemporaryDirectory() as tmp:
-        result = subprocess.run([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--episodes", str(episodes),
+        result = subprocess.run([sys.executable, str(REPO_DIR / "scripts" / "run_pipeline.py"), "--episodes", str(episodes),
                                  "--controller", controller, "--out", tmp], capture_output=True, text=True)
         logs = Path(tmp) / "logs"
         texts = {node: (logs / f"{node}.log").read_text() for node in NODES}
