@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # A shipped policy, or the shipped separator's f^R, in one command, fixed seeds, THREADS torch threads
-# (default 2: both cores of the 2-core machines it is sized for; the thread count is part of what makes the weights reproducible on one machine
-# kind, other CPUs round differently and drift); a run or stage that stopped resumes where it stopped, a
-# finished one is not trained again. docs/policies.md has what each learned and how long it took.
+# (default 2: both cores of the 2-core machines it is sized for; the thread count is part of what makes
+# the weights reproducible on one machine kind, other CPUs round differently and drift); a run or stage
+# that stopped resumes where it stopped, a finished one is not trained again. docs/policies.md has what each learned and how long it took.
 #
 #   quality:    pi^Q ("The shipped pi^Q"): two stages of PPO on near-target episodes, 32 slots x 20 steps,
 #               f^R frozen, the SI-SDR-improvement reward without the final-step term, Adam 3e-4, the

@@ -36,7 +36,7 @@ from m2h_ros.paths import PACKAGE_DIR
 
 CHECKPOINT_FORMAT = 1
 SEPARATOR_KIND = "m2h_separator"
-# f^B, f^M and f^R pretrained passively: what the shipped policies trained against, and the f^R stage's start.
+# f^B, f^M and f^R pretrained passively: what pi^Q and pi^N trained against, and the f^R stage's start.
 PRETRAINED_SEPARATOR_CHECKPOINT = PACKAGE_DIR / "models" / "default" / "separator_compact_pretrained.pt"
 # The pretrained one with f^R trained beside the shipped pi^Q (the original's formulation): what the nodes,
 # the main job and the evaluations run.
