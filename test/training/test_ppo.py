@@ -6,6 +6,7 @@ reward.py) reads finished runs with their training time and refuses runs that di
 import csv
 import dataclasses
 import json
+import subprocess
 
 import numpy as np
 import pytest
@@ -85,6 +86,12 @@ def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
     with pytest.raises(SystemExit):
         parser.parse_args(["@params/recipes/no_such_recipe.args"])
     assert "no_such_recipe.args" in capsys.readouterr().err
+
+
+def test_train_shipped_names_its_kinds():
+    result = subprocess.run(["bash", str(REPO_DIR / "scripts" / "train_shipped.sh"), "pi_x"], capture_output=True,
+                            text=True, timeout=30)
+    assert result.returncode == 2 and "unknown kind 'pi_x' (quality, refiner or navigation)" in result.stderr
 
 
 def test_gae_matches_a_hand_computation():
