@@ -19,6 +19,7 @@ the caller expects) raises CheckpointError with a message naming the file and wh
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -171,15 +172,20 @@ class LoadedSeparator:
 
 
 def save_separator(path: str | os.PathLike, separator: Separator, *, classes: Sequence[str],
-                   stft_config: StftConfig = DEFAULT_STFT, metadata: Mapping[str, Any] | None = None) -> Path:
-    """Save a separator with its model args, STFT settings, target classes and training metadata."""
+                   stft_config: StftConfig = DEFAULT_STFT, metadata: Mapping[str, Any] | None = None,
+                   metadata_json: bool = False) -> Path:
+    """Save a separator with its model args, STFT settings, target classes and training metadata;
+    ``metadata_json``: the metadata also beside it as ``<stem>.json`` (readable without torch)."""
     classes = list(classes)
     if not classes or len(set(classes)) != len(classes) or not all(isinstance(c, str) and c for c in classes):
         raise ConfigError(f"separator classes must be distinct non-empty names, got {classes!r}")
     separator.config.check_stft(stft_config)
-    return write_checkpoint(path, kind=SEPARATOR_KIND, model_args=separator.config.to_dict(),
-                            state_dict=separator.state_dict(), metadata=metadata,
-                            stft=stft_config.to_dict(), classes=classes, separator_version=SEPARATOR_VERSION)
+    saved = write_checkpoint(path, kind=SEPARATOR_KIND, model_args=separator.config.to_dict(),
+                             state_dict=separator.state_dict(), metadata=metadata,
+                             stft=stft_config.to_dict(), classes=classes, separator_version=SEPARATOR_VERSION)
+    if metadata_json:
+        saved.with_suffix(".json").write_text(json.dumps(dict(metadata or {}), indent=1) + "\n")
+    return saved
 
 
 def load_separator(path: str | os.PathLike, *, expected_config: SeparatorConfig | None = None,

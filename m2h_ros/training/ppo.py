@@ -696,10 +696,8 @@ class PPOTrainer:
                                                               "machine", "separator")}
                 separator_metadata = {**self.loaded.metadata,
                                       "refiner_trained_with": {**refiner_run, "policy": str(policy)}}
-                separator = save_separator(self.out_dir / "separator.pt", self.separator,
-                                           classes=self.loaded.classes, stft_config=self.loaded.stft,
-                                           metadata=separator_metadata)
-                separator.with_suffix(".json").write_text(json.dumps(separator_metadata, indent=1) + "\n")
+                save_separator(self.out_dir / "separator.pt", self.separator, classes=self.loaded.classes,
+                               stft_config=self.loaded.stft, metadata=separator_metadata, metadata_json=True)
             with open(self.out_dir / "log.csv", "w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=list(self.history[0]))
                 writer.writeheader()

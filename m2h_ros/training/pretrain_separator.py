@@ -37,7 +37,6 @@ import argparse
 import copy
 import dataclasses
 import hashlib
-import json
 import math
 import os
 import platform
@@ -475,8 +474,7 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
         "machine": {**_machine(), "device": str(device)},
     }
     save_separator(out, separator, classes=list(TARGET_CATEGORIES), stft_config=config.train_data.env.stft,
-                   metadata=metadata)
-    out.with_suffix(".json").write_text(json.dumps(metadata, indent=1) + "\n")
+                   metadata=metadata, metadata_json=True)
     plot_losses(out.with_name(f"{out.stem}_loss.png"), history)
     state_file.unlink(missing_ok=True)
     return PretrainResult(separator, out, metadata)
