@@ -38,6 +38,10 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
    original's lr_sep 5e-4), as the original's ``update_sep`` (ppo_epoch passes: 4); f^R's BatchNorm keeps its pretrained
    statistics (eval mode) so acting and training compute the same function. The trained separator
    is written beside the policy (``separator.pt``): pair them at evaluation.
+   ``frozen_policy`` makes a run an f^R-only stage: no PPO update (the policy acts as loaded by
+   ``init_policy``), and slots ``[0, teacher_slots)`` act with the approach teacher instead (its
+   walk to the target's node, then turns on it), so f^R also learns from rollouts that hold still
+   near the target, which pi^Q's alone rarely do.
 
 DD-PPO (``torchrun``; gloo on CPU, nccl on CUDA): every worker has its own environments (env seed +
 rank: its own episode order) and sampling stream; weights start equal (broadcast from rank 0);
@@ -117,6 +121,7 @@ KINDS = {
     "av_navigator": KindSpec("mixture", True, "navigation", "far_target", 0.2, False),
 }
 WINDOWED = ("return", "final_nmse", "final_quality", "success")  # per-episode values, logged as 50-episode means
+POLICY_LOSSES = ("value_loss", "action_loss", "entropy", "teacher_ce", "location_loss", "location_error_m")
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
 SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
@@ -154,6 +159,8 @@ class PPOConfig:
     teacher_coef: float = 0.0  # kickstarting: weight of the approach teacher's cross-entropy (decays with lr); 0: none
     location_coef: float = 0.0  # weight of the auxiliary target-location loss (training.location); 0: none
     init_policy: str = ""  # policy checkpoint whose weights the run starts from (models.policy.warm_start); "": random
+    frozen_policy: bool = False  # no PPO update: an f^R-only stage (the policy acts as loaded)
+    teacher_slots: int = 0  # frozen_policy: slots [0, teacher_slots) act with the approach teacher
     seed: int = 0
     threads: int = 2  # torch intra-op threads and env render threads
     checkpoint_every: int = 25  # updates
@@ -169,7 +176,17 @@ class PPOConfig:
         if not isinstance(self.env, EnvConfig):
             raise ConfigError("PPOConfig.env must be an EnvConfig")
         check_int_fields(self, (("n_envs", 1), ("n_steps", 1), ("updates", 1), ("ppo_epochs", 1), ("refiner_epochs", 1),
-                                ("n_minibatches", 1), ("seed", 0), ("threads", 1), ("checkpoint_every", 1)))
+                                ("n_minibatches", 1), ("seed", 0), ("threads", 1), ("checkpoint_every", 1),
+                                ("teacher_slots", 0)))
+        if self.frozen_policy and not self.refiner_trained:
+            raise ConfigError("PPOConfig.frozen_policy trains f^R alone: it needs train_refiner")
+        if self.frozen_policy and (self.teacher_coef or self.location_coef):
+            raise ConfigError("PPOConfig.frozen_policy has no policy loss: teacher_coef and location_coef must be 0")
+        if self.teacher_slots and not self.frozen_policy:
+            # PPO's ratios assume the policy chose every action
+            raise ConfigError("PPOConfig.teacher_slots needs frozen_policy: PPO cannot learn from the teacher's actions")
+        if self.teacher_slots > self.n_envs:
+            raise ConfigError(f"PPOConfig.teacher_slots={self.teacher_slots} exceeds n_envs={self.n_envs}")
         if self.n_envs % self.n_minibatches:
             raise ConfigError(f"PPOConfig.n_minibatches={self.n_minibatches} must divide n_envs={self.n_envs}")
         for name in ("clip", "gamma", "gae_lambda", "lr", "refiner_lr", "adam_eps"):
@@ -418,6 +435,8 @@ class PPOTrainer:
                 action = torch.multinomial(probs, 1, generator=self.generator)[:, 0]
                 log_prob = torch.log(probs.gather(1, action[:, None])[:, 0])
             self.hidden = out.hidden
+            if cfg.teacher_slots:
+                self._teacher_acts(action)
             rollout.actions.append(action)
             rollout.log_probs.append(log_prob)
             rollout.values.append(out.value.cpu())
@@ -473,6 +492,13 @@ class PPOTrainer:
             next_value = self.net.step(inputs, self.hidden, torch.from_numpy(self.starts).to(self.device)).value.cpu()
         self.times[2] += time.perf_counter() - tick
         return rollout, next_value, finished
+
+    def _teacher_acts(self, action: torch.Tensor) -> None:
+        """Slots [0, teacher_slots) take the approach teacher's action instead (in place)."""
+        k = self.config.teacher_slots
+        probabilities = teacher_probabilities(self.env.current_episodes[:k], self.obs["node"][:k],
+                                              self.obs["heading"][:k], self.actions.numpy())
+        action[:k] = torch.multinomial(torch.from_numpy(probabilities), 1, generator=self.generator)[:, 0]
 
     def _reward(self, obs: dict, info: dict, env_reward: np.ndarray, separation: SeparationStep,
                 final: SeparationStep | None, ended: np.ndarray) -> _StepReward:
@@ -573,8 +599,7 @@ class PPOTrainer:
                 sums += [value_loss.item(), action_loss.item(), entropy.item(), teacher_ce.item(), where_loss.item(),
                          where_error.item()]
                 count += 1
-        return dict(zip(("value_loss", "action_loss", "entropy", "teacher_ce", "location_loss", "location_error_m"),
-                        (sums / count).tolist(), strict=True))
+        return dict(zip(POLICY_LOSSES, (sums / count).tolist(), strict=True))
 
     def _policy_parameters(self) -> list[torch.nn.Parameter]:
         """What the PPO optimiser steps: the policy's, and the location head's when there is one."""
@@ -729,7 +754,8 @@ class PPOTrainer:
                 started, cpu, times_before = time.perf_counter(), time.process_time(), self.times.copy()
                 rollout, next_value, finished = self._collect()
                 tick = time.perf_counter()
-                losses = self._update_policy(rollout, next_value)
+                losses = (dict.fromkeys(POLICY_LOSSES, float("nan")) if cfg.frozen_policy
+                          else self._update_policy(rollout, next_value))
                 self.times[3] += time.perf_counter() - tick
                 tick = time.perf_counter()
                 losses["refiner_l1"] = self._update_refiner(rollout) if self.refining else float("nan")
@@ -823,6 +849,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--init-policy", default="",
                         help="start from this policy checkpoint's weights (e.g. pi^Q from the shipped pi^N: "
                              "everything but the Stop logit), not random ones")
+    parser.add_argument("--frozen-policy", action="store_true",
+                        help="an f^R-only stage: no PPO update, the policy (--init-policy) acts as loaded")
+    parser.add_argument("--teacher-slots", type=int, default=PPOConfig.teacher_slots,
+                        help="with --frozen-policy: this many slots act with the approach teacher instead (f^R also "
+                             "learns from walks that reach the target and hold still there)")
     parser.add_argument("--entropy-coef", type=float, default=None,
                         help="entropy coefficient (default: the kind's, the seed's 0.01 for quality, 0.2 otherwise)")
     parser.add_argument("--seed", type=int, default=0)
@@ -844,7 +875,8 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
                      final_weight=args.final_weight, lr=args.lr, teacher_coef=args.teacher_coef, init_policy=args.init_policy,
-                     location_coef=args.location_coef,
+                     location_coef=args.location_coef, frozen_policy=args.frozen_policy,
+                     teacher_slots=args.teacher_slots,
                      entropy_coef=args.entropy_coef, seed=args.seed,
                      threads=args.threads, checkpoint_every=args.checkpoint_every, device=args.device)
 

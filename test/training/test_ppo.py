@@ -24,6 +24,7 @@ from m2h_ros.models.separator import SeparatorConfig
 from m2h_ros.paths import REPO_DIR
 from m2h_ros.training.ppo import PPOConfig, PPOTrainer, build_parser, config_from_args, gae, train
 from m2h_ros.training.rewards import QUALITY_REWARDS, QualityTracker, nmse, quality_measure, quality_reward
+from m2h_ros.training.teacher import teacher_probabilities
 
 TINY_SEPARATOR = SeparatorConfig(unet_channels=(8, 8, 16, 16, 16), refiner_hidden=8)  # as separator_path's
 STEPS = 4
@@ -282,6 +283,41 @@ def test_training_writes_checkpoints_and_resumes_exactly(fast_env, separator_pat
 
     with pytest.raises(CheckpointError, match="other settings.*lr"):
         train(dataclasses.replace(config, lr=1e-3), folder_library, out_dir=tmp_path / "part", progress=False)
+
+
+def test_an_refiner_only_stage_keeps_the_policy_and_lets_the_teacher_act(fast_env, separator_path, folder_library,
+                                                                        tmp_path):
+    start = train(tiny(fast_env, separator_path, updates=1), folder_library, out_dir=tmp_path / "start", progress=False)
+    config = tiny(fast_env, separator_path, frozen_policy=True, teacher_slots=1, init_policy=str(start.checkpoint),
+                  n_steps=3 * STEPS, updates=2)
+    trainer = PPOTrainer(config, folder_library, out_dir=tmp_path / "stage", progress=False)
+    step, followed = trainer.env.step, []
+
+    def recording(actions):  # slot 0's action must be one the teacher gives at the pose it acts from
+        teacher = teacher_probabilities(trainer.env.current_episodes[:1], trainer.obs["node"][:1],
+                                        trainer.obs["heading"][:1], trainer.actions.numpy())[0]
+        followed.append(teacher[list(trainer.actions.numpy()).index(actions[0])] > 0)
+        return step(actions)
+
+    trainer.env.step = recording
+    try:
+        result = trainer.run()
+    finally:
+        trainer.env.close()
+    assert len(followed) == 2 * 3 * STEPS and all(followed)
+    for name, tensor in start.net.state_dict().items():
+        torch.testing.assert_close(result.net.state_dict()[name], tensor, rtol=0, atol=0, msg=name)
+    refined = load_separator(tmp_path / "stage" / "separator.pt", expected_config=TINY_SEPARATOR)
+    assert not torch.equal(refined.separator.refiner.body[0].weight,
+                           load_separator(separator_path).separator.refiner.body[0].weight)
+    assert np.isnan(result.history[-1]["action_loss"]) and np.isfinite(result.history[-1]["refiner_l1"])
+
+    for overrides, message in ((dict(teacher_slots=1), "needs frozen_policy"),
+                               (dict(frozen_policy=True, train_refiner=False), "needs train_refiner"),
+                               (dict(frozen_policy=True, location_coef=1.0), "location_coef must be 0"),
+                               (dict(frozen_policy=True, teacher_slots=3), "exceeds n_envs=2")):
+        with pytest.raises(ConfigError, match=message):
+            tiny(fast_env, separator_path, **overrides)
 
 
 def test_av_navigator_and_novelty_train_with_the_camera(fast_env, separator_path, folder_library, tmp_path):
