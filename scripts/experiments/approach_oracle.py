@@ -2,12 +2,13 @@
 """Diagnostic: what walking to the target's node gains over standing still, with ground-truth knowledge.
 
     python scripts/experiments/approach_oracle.py [--task near_target] [--sound-split heard,unheard]
-        [--count 500] [--threads 2] [--checkpoint SEPARATOR] [--out docs/results/approach_oracle]
+        [--count 500] [--threads 2] [--checkpoint SEPARATOR] [--hold stand,turn] [--out docs/results/approach_oracle]
 
 Plays Stand In-Place and :class:`m2h_ros.experiments.oracle.ApproachOracle` (a shortest path to the
 target's node, read from the episode file, then holding there) on the same test episodes with the
 shipped separator (or --checkpoint), and writes the paper-style table with the oracle's paired difference to Stand
-In-Place. It bounds what a policy that learns to approach the target can gain here: the issue's
+In-Place (``--hold``: one oracle per way of holding at the target, standing still or turning as
+pi^Q must). It bounds what a policy that learns to approach the target can gain here: the issue's
 near-target target for Move2Hear is Stand In-Place + 1.5 dB.
 """
 
@@ -45,6 +46,8 @@ def main(argv=None) -> int:
     parser.add_argument("--slots", type=int, default=16)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="separator checkpoint")
+    parser.add_argument("--hold", default="stand", help="how the oracle holds on the target's node, comma-separated: "
+                        "stand (Stop, as Stand In-Place) and/or turn (TurnLeft each step, as pi^Q can)")
     parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "approach_oracle")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
@@ -54,13 +57,17 @@ def main(argv=None) -> int:
         splits = args.sound_split.split(",")
         if any(s not in SOUND_SPLITS for s in splits) or args.count < 1 or args.slots < 1 or args.threads < 1:
             raise ConfigError(f"--sound-split must name {SOUND_SPLITS}; --count, --slots, --threads >= 1")
+        holds = args.hold.split(",")
+        if any(h not in ApproachOracle.HOLDS for h in holds):
+            raise ConfigError(f"--hold must name {sorted(ApproachOracle.HOLDS)}")
         torch.set_num_threads(args.threads)
         library, loaded = SoundLibrary.load(), load_separator(args.checkpoint)
         episodes = [e for split in splits for e in episodes_for(
             EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)[:args.count]]
         slots = min(args.slots, len(episodes))
         results = []
-        for controller in (make_controller(REFERENCE, slots), ApproachOracle(slots, episodes=episodes)):
+        oracles = [ApproachOracle(slots, episodes=episodes, hold=hold) for hold in holds]
+        for controller in (make_controller(REFERENCE, slots), *oracles):
             results += evaluate_controller(controller, SeparatorRunner(loaded, slots), episodes, library,
                                            env_config=EnvConfig(camera=False), threads=args.threads,
                                            progress=not args.no_progress)
@@ -77,7 +84,7 @@ def main(argv=None) -> int:
     print(markdown_table(summarize(results)))
     print(f"final-step SI-SDR (GT phase) minus {REFERENCE}'s, same episodes:")
     print(paired_table(paired_differences(results, reference=REFERENCE)))
-    oracle = [r for r in results if r.controller == ApproachOracle.name]
+    oracle = [r for r in results if r.controller == oracles[0].name]
     print(f"oracle path: {sum(r.path_length for r in oracle) / len(oracle):.2f} m on average "
           f"(shortest {sum(r.shortest_path for r in oracle) / len(oracle):.2f} m)")
     print(f"{len(results)} episodes in {meta['wall_seconds']} s; " + ", ".join(f"{k}: {v}" for k, v in paths.items()))

@@ -1,5 +1,5 @@
 """The privileged approach oracle (a diagnostic, not a baseline): it follows a shortest path to the
-target's node and then holds there, and the controller registry does not hold it."""
+target's node and then holds there, standing or turning, and the controller registry does not hold it."""
 
 import numpy as np
 import pytest
@@ -7,7 +7,7 @@ from test_baselines import play
 
 from m2h_ros.agents.base import EpisodeStart
 from m2h_ros.agents.registry import CONTROLLER_NAMES
-from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.oracle import ApproachOracle
 
@@ -22,6 +22,21 @@ def test_the_oracle_reaches_the_target_node_and_holds_there(folder_library, env_
     assert (record["action"][~arrived] != STOP).all()
     walked = (record["action"] == MOVE_FORWARD).sum(0)
     assert (walked == [grid.geodesic[e.start_node, e.target_node] for grid, e in zip(grids, episodes)]).all()
+
+
+def test_the_turning_oracle_walks_the_same_path_then_turns_on_the_node(folder_library, env_config, small_episodes):
+    episodes = small_episodes(count=6, max_steps=10)
+    standing, _ = play(ApproachOracle(len(episodes), episodes=episodes), episodes, folder_library, env_config)
+    oracle = ApproachOracle(len(episodes), episodes=episodes, hold="turn")
+    assert oracle.name == "approach_oracle_turning"
+    turning, _ = play(oracle, episodes, folder_library, env_config)
+    targets = np.array([e.target_node for e in episodes])
+    arrived = turning["node"][:-1] == targets
+    assert arrived.any() and (turning["action"][arrived] == TURN_LEFT).all()
+    np.testing.assert_array_equal(turning["action"][~arrived], standing["action"][~arrived])
+    assert (turning["node"] == standing["node"]).all()  # turning on the node keeps it there
+    with pytest.raises(ConfigError, match="hold='sit'"):
+        ApproachOracle(1, episodes=episodes, hold="sit")
 
 
 def test_the_oracle_is_no_registered_controller_and_knows_only_its_episodes(small_episodes):
