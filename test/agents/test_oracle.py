@@ -1,15 +1,22 @@
 """The privileged approach oracle (a diagnostic, not a baseline): it follows a shortest path to the
-target's node and then holds there, standing or turning, and the controller registry does not hold it."""
+target's node and then holds there, standing or turning, and the controller registry does not hold it;
+its walks and a random one's, replayed from their actions on the grid (experiments/reach.py), end where
+the environment took them."""
+
+import dataclasses
 
 import numpy as np
 import pytest
 from test_baselines import play
 
 from m2h_ros.agents.base import EpisodeStart
+from m2h_ros.agents.baselines import RandomActions
 from m2h_ros.agents.registry import CONTROLLER_NAMES
+from m2h_ros.core.results import EpisodeResult
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.oracle import ApproachOracle
+from m2h_ros.experiments.reach import geodesic_trace, reach_table
 
 
 def test_the_oracle_reaches_the_target_node_and_holds_there(folder_library, env_config, small_episodes):
@@ -44,3 +51,23 @@ def test_the_oracle_is_no_registered_controller_and_knows_only_its_episodes(smal
     oracle = ApproachOracle(1, episodes=small_episodes(count=1, max_steps=3))
     with pytest.raises(ConfigError, match="not in the list"):
         oracle.reset(0, EpisodeStart("elsewhere", "near_target", "speech", 3, 0))
+
+
+def test_replayed_walks_end_where_the_environment_took_them(folder_library, env_config, small_episodes):
+    episodes = small_episodes(count=6, max_steps=10)
+    by_id, rows = {e.episode_id: e for e in episodes}, []
+    for controller in (ApproachOracle(len(episodes), episodes=episodes), RandomActions(len(episodes), seed=1)):
+        record, grids = play(controller, episodes, folder_library, env_config)
+        for slot, (episode, grid) in enumerate(zip(episodes, grids, strict=True)):
+            trace = geodesic_trace(episode, record["action"][:, slot].tolist())
+            np.testing.assert_array_equal(trace, grid.geodesic[record["node"][:, slot], episode.target_node])
+            rows.append(EpisodeResult(episode.episode_id, controller.name, "near_target", "heard", episode.scene_id,
+                                      "speech", actions=record["action"][:, slot].tolist(),
+                                      shortest_path=float(trace[0])))
+    oracle, random = reach_table(rows, by_id)
+    assert (oracle.controller, oracle.final_m, oracle.ends_on_target, oracle.ever_on_target) == \
+        ("approach_oracle", 0.0, 1.0, 1.0)
+    assert random.controller == "random" and random.start_m == oracle.start_m > 0
+    moved = dataclasses.replace(rows[0], shortest_path=rows[0].shortest_path + 1)  # another episode behind the id
+    with pytest.raises(ConfigError, match="not among the episodes given"):
+        reach_table([moved], by_id)

@@ -1,0 +1,86 @@
+"""Where a controller's walk takes the robot relative to the target, from results already written.
+
+Each episode's recorded actions are replayed on its scene's navigation grid (moves are deterministic:
+BatchEnv's rule, MoveForward follows ``grid.forward``, turns change the heading, an action that never
+came (-1) holds), giving the geodesic distance to the target's node after every step. Summarised per
+controller, task and sound split: the mean distance at the start, halfway and at the end, and the share
+of episodes that end on the target's node or were on it at some step. It says whether a controller that
+hears the target worse than an oracle failed to find it or found it and left.
+
+    python scripts/experiments/reach.py docs/results/near_target_all/results.json [--out reach.md]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from m2h_ros.core.results import EpisodeResult
+from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, Episode
+from m2h_ros.core.world.navgrid import turn_left, turn_right
+from m2h_ros.errors import ConfigError
+
+
+def geodesic_trace(episode: Episode, actions: Sequence[int]) -> np.ndarray:
+    """(len(actions) + 1,) geodesic metres from the robot to the target's node before the first action
+    and after each one."""
+    grid = episode.scene().grid
+    node, heading, goal = episode.start_node, episode.start_heading, episode.target_node
+    trace = [grid.geodesic[node, goal]]
+    for action in actions:
+        if action == MOVE_FORWARD:
+            node = int(grid.forward[node, heading])
+        elif action == TURN_LEFT:
+            heading = turn_left(heading)
+        elif action == TURN_RIGHT:
+            heading = turn_right(heading)
+        trace.append(grid.geodesic[node, goal])
+    return np.asarray(trace, np.float64)
+
+
+@dataclass(frozen=True)
+class Reach:
+    """One controller's walks in one task and sound split."""
+
+    controller: str
+    task: str
+    sound_split: str
+    episodes: int
+    start_m: float  # mean geodesic distance to the target's node before the first action
+    halfway_m: float  # ... after half the steps (of the shortest episode)
+    final_m: float  # ... after the last action
+    ends_on_target: float  # share of episodes whose last pose is on the target's node
+    ever_on_target: float  # share that were on it after some action
+
+
+def reach_table(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]) -> list[Reach]:
+    """:class:`Reach` rows, sorted by controller, task and split; ``episodes`` by episode id."""
+    traces: dict[tuple[str, str, str], list[np.ndarray]] = {}
+    for result in results:
+        episode = episodes.get(result.episode_id)
+        trace = None if episode is None else geodesic_trace(episode, result.actions)
+        # An id names its split, task, sound split and scenario, not every episode setting: check the start.
+        if trace is None or episode.scene_id != result.scene_id or abs(trace[0] - result.shortest_path) > 1e-6:
+            raise ConfigError(f"episode {result.episode_id!r} of the results is not among the episodes given "
+                              f"(results made with other episode settings?)")
+        traces.setdefault((result.controller, result.task, result.sound_split), []).append(trace)
+    rows = []
+    for (controller, task, split), group in sorted(traces.items()):
+        halfway = min(len(t) for t in group) // 2
+        on_target = [t[1:] == 0 for t in group]
+        rows.append(Reach(controller, task, split, len(group), start_m=float(np.mean([t[0] for t in group])),
+                          halfway_m=float(np.mean([t[halfway] for t in group])),
+                          final_m=float(np.mean([t[-1] for t in group])),
+                          ends_on_target=float(np.mean([t[-1] == 0 for t in group])),
+                          ever_on_target=float(np.mean([bool(o.any()) for o in on_target]))))
+    return rows
+
+
+def reach_markdown(rows: Sequence[Reach]) -> str:
+    lines = ["| controller | task | sound_split | episodes | start (m) | halfway (m) | final (m) | ends on target "
+             "| ever on target |", "|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r.controller} | {r.task} | {r.sound_split} | {r.episodes} | {r.start_m:.2f} | {r.halfway_m:.2f} "
+              f"| {r.final_m:.2f} | {r.ends_on_target:.3f} | {r.ever_on_target:.3f} |" for r in rows]
+    return "\n".join(lines)
