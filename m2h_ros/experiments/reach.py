@@ -5,9 +5,11 @@ BatchEnv's rule, MoveForward follows ``grid.forward``, turns change the heading,
 came (-1) holds), giving the geodesic distance to the target's node after every step. Summarised per
 controller, task and sound split: the mean distance at the start, halfway and at the end, and the share
 of episodes that end on the target's node or were on it at some step. It says whether a controller that
-hears the target worse than an oracle failed to find it or found it and left.
+hears the target worse than an oracle failed to find it or found it and left; with a reference
+controller on the same episodes, :func:`gain_by_reach` gives the final-step SI-SDR gain over it in each
+of those three groups.
 
-    python scripts/experiments/reach.py docs/results/near_target_all/results.json [--out reach.md]
+    python scripts/experiments/reach.py docs/results/near_target_all/results.json [--reference stand_in_place] [--out reach.md]
 """
 
 from __future__ import annotations
@@ -55,17 +57,21 @@ class Reach:
     ever_on_target: float  # share that were on it after some action
 
 
+def _trace(result: EpisodeResult, episodes: Mapping[str, Episode]) -> np.ndarray:
+    episode = episodes.get(result.episode_id)
+    trace = None if episode is None else geodesic_trace(episode, result.actions)
+    # An id names its split, task, sound split and scenario, not every episode setting: check the start.
+    if trace is None or episode.scene_id != result.scene_id or abs(trace[0] - result.shortest_path) > 1e-6:
+        raise ConfigError(f"episode {result.episode_id!r} of the results is not among the episodes given "
+                          f"(results made with other episode settings?)")
+    return trace
+
+
 def reach_table(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]) -> list[Reach]:
     """:class:`Reach` rows, sorted by controller, task and split; ``episodes`` by episode id."""
     traces: dict[tuple[str, str, str], list[np.ndarray]] = {}
     for result in results:
-        episode = episodes.get(result.episode_id)
-        trace = None if episode is None else geodesic_trace(episode, result.actions)
-        # An id names its split, task, sound split and scenario, not every episode setting: check the start.
-        if trace is None or episode.scene_id != result.scene_id or abs(trace[0] - result.shortest_path) > 1e-6:
-            raise ConfigError(f"episode {result.episode_id!r} of the results is not among the episodes given "
-                              f"(results made with other episode settings?)")
-        traces.setdefault((result.controller, result.task, result.sound_split), []).append(trace)
+        traces.setdefault((result.controller, result.task, result.sound_split), []).append(_trace(result, episodes))
     rows = []
     for (controller, task, split), group in sorted(traces.items()):
         halfway = min(len(t) for t in group) // 2
@@ -76,6 +82,38 @@ def reach_table(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode
                           ends_on_target=float(np.mean([t[-1] == 0 for t in group])),
                           ever_on_target=float(np.mean([bool(o.any()) for o in on_target]))))
     return rows
+
+
+REACH_GROUPS = ("ends on target", "left it", "never on it")
+
+
+def gain_by_reach(results: Sequence[EpisodeResult], episodes: Mapping[str, Episode], *, reference: str
+                  ) -> list[tuple[str, str, str, str, int, float]]:
+    """(controller, task, sound split, group, episodes, mean final-step SI-SDR minus ``reference``'s on the
+    same episode) for each controller but the reference and each of :data:`REACH_GROUPS` it has episodes in."""
+    final = {r.episode_id: r.si_sdr[-1] for r in results if r.controller == reference}
+    if not final:
+        raise ConfigError(f"no episodes of the reference {reference!r} in the results")
+    gains: dict[tuple[str, str, str, str], list[float]] = {}
+    for result in results:
+        if result.controller == reference:
+            continue
+        if result.episode_id not in final:
+            raise ConfigError(f"{result.controller} played {result.episode_id!r}, {reference} did not")
+        trace = _trace(result, episodes)
+        group = REACH_GROUPS[0] if trace[-1] == 0 else REACH_GROUPS[1] if (trace[1:] == 0).any() else REACH_GROUPS[2]
+        gains.setdefault((result.controller, result.task, result.sound_split, group), []).append(
+            result.si_sdr[-1] - final[result.episode_id])
+    order = {g: i for i, g in enumerate(REACH_GROUPS)}
+    return [(*key, len(values), float(np.mean(values)))
+            for key, values in sorted(gains.items(), key=lambda kv: (*kv[0][:3], order[kv[0][3]]))]
+
+
+def gain_markdown(rows: Sequence[tuple[str, str, str, str, int, float]], *, reference: str) -> str:
+    lines = [f"| controller | task | sound_split | walk | episodes | final SI-SDR minus {reference}'s (dB) |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {c} | {t} | {s} | {g} | {n} | {gain:+.2f} |" for c, t, s, g, n, gain in rows]
+    return "\n".join(lines)
 
 
 def reach_markdown(rows: Sequence[Reach]) -> str:

@@ -16,7 +16,7 @@ from m2h_ros.core.results import EpisodeResult
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.oracle import ApproachOracle
-from m2h_ros.experiments.reach import geodesic_trace, reach_table
+from m2h_ros.experiments.reach import REACH_GROUPS, gain_by_reach, geodesic_trace, reach_table
 
 
 def test_the_oracle_reaches_the_target_node_and_holds_there(folder_library, env_config, small_episodes):
@@ -62,12 +62,19 @@ def test_replayed_walks_end_where_the_environment_took_them(folder_library, env_
             trace = geodesic_trace(episode, record["action"][:, slot].tolist())
             np.testing.assert_array_equal(trace, grid.geodesic[record["node"][:, slot], episode.target_node])
             rows.append(EpisodeResult(episode.episode_id, controller.name, "near_target", "heard", episode.scene_id,
-                                      "speech", actions=record["action"][:, slot].tolist(),
+                                      "speech", actions=record["action"][:, slot].tolist(), si_sdr=[0.0, slot + 1.0],
                                       shortest_path=float(trace[0])))
+    standing = [EpisodeResult(e.episode_id, "stand_in_place", "near_target", "heard", e.scene_id, "speech",
+                              si_sdr=[0.0, 0.5], shortest_path=rows[i].shortest_path) for i, e in enumerate(episodes)]
     oracle, random = reach_table(rows, by_id)
     assert (oracle.controller, oracle.final_m, oracle.ends_on_target, oracle.ever_on_target) == \
         ("approach_oracle", 0.0, 1.0, 1.0)
     assert random.controller == "random" and random.start_m == oracle.start_m > 0
+    gains = gain_by_reach(rows + standing, by_id, reference="stand_in_place")
+    assert gains[0] == ("approach_oracle", "near_target", "heard", REACH_GROUPS[0], 6, np.mean(np.arange(1, 7)) - 0.5)
+    assert sum(g[4] for g in gains[1:]) == 6 and {g[0] for g in gains[1:]} == {"random"}
+    with pytest.raises(ConfigError, match="played .*000000.*, stand_in_place did not"):
+        gain_by_reach(rows + standing[1:], by_id, reference="stand_in_place")
     moved = dataclasses.replace(rows[0], shortest_path=rows[0].shortest_path + 1)  # another episode behind the id
     with pytest.raises(ConfigError, match="not among the episodes given"):
         reach_table([moved], by_id)
