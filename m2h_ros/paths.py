@@ -31,3 +31,8 @@ def repo_relative(path: str | os.PathLike) -> str:
 def file_sha256(path: str | os.PathLike) -> str:
     """The first 12 hex digits of a file's sha256: how tables name the model files they ran."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+def file_label(path: str | os.PathLike) -> str:
+    """"<repo-relative path> (sha256 <prefix>)": a model file as a table's setup line names it."""
+    return f"{repo_relative(path)} (sha256 {file_sha256(path)})"

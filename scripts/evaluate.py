@@ -41,7 +41,7 @@ from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeCon
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-from m2h_ros.paths import file_sha256, repo_relative  # noqa: E402
+from m2h_ros.paths import file_label, file_sha256, repo_relative  # noqa: E402
 
 
 def names(text: str, *, allowed: Sequence[str], what: str) -> list[str]:
@@ -117,8 +117,7 @@ def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence
 
 def describe_models(model_files: dict[str, list[Path]]) -> dict[str, list[str]]:
     """Each controller's model files as "path (sha256 prefix)", for a table's setup line."""
-    return {name: [f"{repo_relative(path)} (sha256 {file_sha256(path)})"
-                   for path in paths] for name, paths in model_files.items() if paths}
+    return {name: [file_label(path) for path in paths] for name, paths in model_files.items() if paths}
 
 
 def main(argv: list[str] | None = None) -> int:

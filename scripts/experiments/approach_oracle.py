@@ -33,7 +33,7 @@ from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
 from m2h_ros.experiments.oracle import ApproachOracle  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-from m2h_ros.paths import REPO_DIR, file_sha256, repo_relative  # noqa: E402
+from m2h_ros.paths import REPO_DIR, file_label, repo_relative  # noqa: E402
 
 REFERENCE = "stand_in_place"
 
@@ -76,7 +76,7 @@ def main(argv=None) -> int:
                 "wall_seconds": round(time.perf_counter() - started, 1),
                 "load_average": [round(x, 2) for x in os.getloadavg()]}
         paths = write_results(results, args.out, title=f"Approach oracle vs Stand In-Place, {args.task} test episodes",
-                              meta=meta, command=command, setup=f"separator `{repo_relative(loaded.path)}` (sha256 {file_sha256(loaded.path)})",
+                              meta=meta, command=command, setup=f"separator {file_label(loaded.path)}",
                               reference=REFERENCE)
     except M2HError as exc:
         print(f"approach_oracle: error: {exc}", file=sys.stderr)
