@@ -3,7 +3,7 @@
 Each episode's recorded actions are replayed on its scene's navigation grid (moves are deterministic:
 BatchEnv's rule, MoveForward follows ``grid.forward``, turns change the heading, an action that never
 came (-1) holds), giving the geodesic distance to the target's node after every step. Summarised per
-controller, task and sound split: the mean distance at the start, halfway and at the end, and the share
+controller, experiment condition, task and sound split: the mean distance at the start, halfway and at the end, and the share
 of episodes that end on the target's node or were on it at some step. It says whether a controller that
 hears the target worse than an oracle failed to find it or found it and left; with a reference
 controller on the same episodes, :func:`gain_by_reach` gives the final-step SI-SDR gain over it in each
@@ -47,6 +47,7 @@ class Reach:
     """One controller's walks in one task and sound split."""
 
     controller: str
+    condition: str  # what an experiment varied ("" outside experiments)
     task: str
     sound_split: str
     episodes: int
@@ -69,14 +70,15 @@ def _trace(result: EpisodeResult, episodes: Mapping[str, Episode]) -> np.ndarray
 
 def reach_table(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]) -> list[Reach]:
     """:class:`Reach` rows, sorted by controller, task and split; ``episodes`` by episode id."""
-    traces: dict[tuple[str, str, str], list[np.ndarray]] = {}
+    traces: dict[tuple[str, str, str, str], list[np.ndarray]] = {}
     for result in results:
-        traces.setdefault((result.controller, result.task, result.sound_split), []).append(_trace(result, episodes))
+        key = (result.controller, result.condition, result.task, result.sound_split)
+        traces.setdefault(key, []).append(_trace(result, episodes))
     rows = []
-    for (controller, task, split), group in sorted(traces.items()):
+    for (controller, condition, task, split), group in sorted(traces.items()):
         halfway = min(len(t) for t in group) // 2
         on_target = [t[1:] == 0 for t in group]
-        rows.append(Reach(controller, task, split, len(group), start_m=float(np.mean([t[0] for t in group])),
+        rows.append(Reach(controller, condition, task, split, len(group), start_m=float(np.mean([t[0] for t in group])),
                           halfway_m=float(np.mean([t[halfway] for t in group])),
                           final_m=float(np.mean([t[-1] for t in group])),
                           ends_on_target=float(np.mean([t[-1] == 0 for t in group])),
@@ -88,37 +90,38 @@ REACH_GROUPS = ("ends on target", "left it", "never on it")
 
 
 def gain_by_reach(results: Sequence[EpisodeResult], episodes: Mapping[str, Episode], *, reference: str
-                  ) -> list[tuple[str, str, str, str, int, float]]:
-    """(controller, task, sound split, group, episodes, mean final-step SI-SDR minus ``reference``'s on the
-    same episode) for each controller but the reference and each of :data:`REACH_GROUPS` it has episodes in."""
-    final = {r.episode_id: r.si_sdr[-1] for r in results if r.controller == reference}
+                  ) -> list[tuple[str, str, str, str, str, int, float]]:
+    """(controller, condition, task, sound split, group, episodes, mean final-step SI-SDR minus ``reference``'s
+    on the same episode and condition) for each controller but the reference and each of :data:`REACH_GROUPS`
+    it has episodes in."""
+    final = {(r.episode_id, r.condition): r.si_sdr[-1] for r in results if r.controller == reference}
     if not final:
         raise ConfigError(f"no episodes of the reference {reference!r} in the results")
-    gains: dict[tuple[str, str, str, str], list[float]] = {}
+    gains: dict[tuple[str, str, str, str, str], list[float]] = {}
     for result in results:
         if result.controller == reference:
             continue
-        if result.episode_id not in final:
+        if (result.episode_id, result.condition) not in final:
             raise ConfigError(f"{result.controller} played {result.episode_id!r}, {reference} did not")
         trace = _trace(result, episodes)
         group = REACH_GROUPS[0] if trace[-1] == 0 else REACH_GROUPS[1] if (trace[1:] == 0).any() else REACH_GROUPS[2]
-        gains.setdefault((result.controller, result.task, result.sound_split, group), []).append(
-            result.si_sdr[-1] - final[result.episode_id])
+        gains.setdefault((result.controller, result.condition, result.task, result.sound_split, group), []).append(
+            result.si_sdr[-1] - final[result.episode_id, result.condition])
     order = {g: i for i, g in enumerate(REACH_GROUPS)}
     return [(*key, len(values), float(np.mean(values)))
-            for key, values in sorted(gains.items(), key=lambda kv: (*kv[0][:3], order[kv[0][3]]))]
+            for key, values in sorted(gains.items(), key=lambda kv: (*kv[0][:4], order[kv[0][4]]))]
 
 
-def gain_markdown(rows: Sequence[tuple[str, str, str, str, int, float]], *, reference: str) -> str:
-    lines = [f"| controller | task | sound_split | walk | episodes | final SI-SDR minus {reference}'s (dB) |",
-             "|---|---|---|---|---|---|"]
-    lines += [f"| {c} | {t} | {s} | {g} | {n} | {gain:+.2f} |" for c, t, s, g, n, gain in rows]
+def gain_markdown(rows: Sequence[tuple[str, str, str, str, str, int, float]], *, reference: str) -> str:
+    lines = [f"| controller | condition | task | sound_split | walk | episodes | final SI-SDR minus {reference}'s (dB) |",
+             "|---|---|---|---|---|---|---|"]
+    lines += [f"| {c} | {k} | {t} | {s} | {g} | {n} | {gain:+.2f} |" for c, k, t, s, g, n, gain in rows]
     return "\n".join(lines)
 
 
 def reach_markdown(rows: Sequence[Reach]) -> str:
-    lines = ["| controller | task | sound_split | episodes | start (m) | halfway (m) | final (m) | ends on target "
-             "| ever on target |", "|---|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r.controller} | {r.task} | {r.sound_split} | {r.episodes} | {r.start_m:.2f} | {r.halfway_m:.2f} "
+    lines = ["| controller | condition | task | sound_split | episodes | start (m) | halfway (m) | final (m) "
+             "| ends on target | ever on target |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r.controller} | {r.condition} | {r.task} | {r.sound_split} | {r.episodes} | {r.start_m:.2f} | {r.halfway_m:.2f} "
               f"| {r.final_m:.2f} | {r.ends_on_target:.3f} | {r.ever_on_target:.3f} |" for r in rows]
     return "\n".join(lines)

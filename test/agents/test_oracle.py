@@ -71,8 +71,8 @@ def test_replayed_walks_end_where_the_environment_took_them(folder_library, env_
         ("approach_oracle", 0.0, 1.0, 1.0)
     assert random.controller == "random" and random.start_m == oracle.start_m > 0
     gains = gain_by_reach(rows + standing, by_id, reference="stand_in_place")
-    assert gains[0] == ("approach_oracle", "near_target", "heard", REACH_GROUPS[0], 6, np.mean(np.arange(1, 7)) - 0.5)
-    assert sum(g[4] for g in gains[1:]) == 6 and {g[0] for g in gains[1:]} == {"random"}
+    assert gains[0] == ("approach_oracle", "", "near_target", "heard", REACH_GROUPS[0], 6, np.mean(np.arange(1, 7)) - 0.5)
+    assert sum(g[5] for g in gains[1:]) == 6 and {g[0] for g in gains[1:]} == {"random"}
     with pytest.raises(ConfigError, match="played .*000000.*, stand_in_place did not"):
         gain_by_reach(rows + standing[1:], by_id, reference="stand_in_place")
     moved = dataclasses.replace(rows[0], shortest_path=rows[0].shortest_path + 1)  # another episode behind the id
