@@ -285,8 +285,8 @@ def test_training_writes_checkpoints_and_resumes_exactly(fast_env, separator_pat
         train(dataclasses.replace(config, lr=1e-3), folder_library, out_dir=tmp_path / "part", progress=False)
 
 
-def test_an_refiner_only_stage_keeps_the_policy_and_lets_the_teacher_act(fast_env, separator_path, folder_library,
-                                                                        tmp_path):
+def test_a_refiner_only_stage_keeps_the_policy_and_lets_the_teacher_act(fast_env, separator_path, folder_library,
+                                                                       tmp_path):
     start = train(tiny(fast_env, separator_path, updates=1), folder_library, out_dir=tmp_path / "start", progress=False)
     config = tiny(fast_env, separator_path, frozen_policy=True, teacher_slots=1, init_policy=str(start.checkpoint),
                   n_steps=3 * STEPS, updates=2)
