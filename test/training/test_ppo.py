@@ -1,6 +1,7 @@
 """PPO on a tiny config: each quality reward has the right size on a constructed estimate, is the same
 computed on the tracker's worker thread as in line, and telescopes to the episode's change of its measure, GAE matches a hand computation, a run writes loadable
-checkpoints and logs, a resumed run equals an uninterrupted one, and experiment 6 (m2h_ros/experiments/
+checkpoints and logs, a resumed run equals an uninterrupted one, an f^R-only stage keeps the policy and lets
+the approach teacher act in its slots, and experiment 6 (m2h_ros/experiments/
 reward.py) reads finished runs with their training time and refuses runs that differ in more than the reward."""
 
 import csv
