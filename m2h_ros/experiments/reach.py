@@ -16,9 +16,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from m2h_ros.core.plotting import agg_pyplot
 from m2h_ros.core.results import EpisodeResult
 from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, Episode
 from m2h_ros.core.world.navgrid import turn_left, turn_right
@@ -52,7 +54,7 @@ class Reach:
     sound_split: str
     episodes: int
     start_m: float  # mean geodesic distance to the target's node before the first action
-    halfway_m: float  # ... after half the steps (of the shortest episode)
+    halfway_m: float  # ... after half the steps of the longest episode (one that stopped earlier: where it stopped)
     final_m: float  # ... after the last action
     ends_on_target: float  # share of episodes whose last pose is on the target's node
     ever_on_target: float  # share that were on it after some action
@@ -68,22 +70,52 @@ def _trace(result: EpisodeResult, episodes: Mapping[str, Episode]) -> np.ndarray
     return trace
 
 
-def reach_table(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]) -> list[Reach]:
-    """:class:`Reach` rows, sorted by controller, task and split; ``episodes`` by episode id."""
+def _traces(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]
+            ) -> dict[tuple[str, str, str, str], list[np.ndarray]]:
+    """Each (controller, condition, task, sound split)'s geodesic traces, sorted by that key."""
     traces: dict[tuple[str, str, str, str], list[np.ndarray]] = {}
     for result in results:
         key = (result.controller, result.condition, result.task, result.sound_split)
         traces.setdefault(key, []).append(_trace(result, episodes))
+    return dict(sorted(traces.items()))
+
+
+def _padded(group: list[np.ndarray]) -> np.ndarray:
+    """(episodes, longest + 1): an episode that ended early (Stop) stays where it stopped."""
+    length = max(len(t) for t in group)
+    return np.array([np.pad(t, (0, length - len(t)), mode="edge") for t in group])
+
+
+def reach_table(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]) -> list[Reach]:
+    """:class:`Reach` rows, sorted by controller, condition, task and split; ``episodes`` by episode id."""
     rows = []
-    for (controller, condition, task, split), group in sorted(traces.items()):
-        halfway = min(len(t) for t in group) // 2
+    for (controller, condition, task, split), group in _traces(results, episodes).items():
+        padded = _padded(group)
         on_target = [t[1:] == 0 for t in group]
-        rows.append(Reach(controller, condition, task, split, len(group), start_m=float(np.mean([t[0] for t in group])),
-                          halfway_m=float(np.mean([t[halfway] for t in group])),
+        rows.append(Reach(controller, condition, task, split, len(group), start_m=float(padded[:, 0].mean()),
+                          halfway_m=float(padded[:, (padded.shape[1] - 1) // 2].mean()),
                           final_m=float(np.mean([t[-1] for t in group])),
                           ends_on_target=float(np.mean([t[-1] == 0 for t in group])),
                           ever_on_target=float(np.mean([bool(o.any()) for o in on_target]))))
     return rows
+
+
+def plot_reach(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode], path: str | Path) -> Path:
+    """Mean geodesic distance to the target's node vs step, one line per controller, condition, task and split
+    (an episode that ended early, by Stop, stays where it stopped)."""
+    plt = agg_pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for (controller, condition, task, split), group in _traces(results, episodes).items():
+        padded = _padded(group)
+        label = ", ".join(x for x in (controller, condition, task, split) if x)
+        ax.plot(np.arange(padded.shape[1]), padded.mean(0), label=f"{label} (n={len(group)})")
+    ax.set(xlabel="step", ylabel="geodesic distance to the target's node (m)", ylim=(0, None))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path)
 
 
 REACH_GROUPS = ("ends on target", "left it", "never on it")

@@ -3,7 +3,7 @@
 played again): mean geodesic distance to the target's node at the start, halfway and at the end, and the
 share of episodes that end on it or were on it at some step (``m2h_ros/experiments/reach.py``).
 
-    python scripts/experiments/reach.py docs/results/policy_quality_refiner_s18/near_target_all/results.json [--reference stand_in_place] [--out reach.md]
+    python scripts/experiments/reach.py docs/results/policy_quality_refiner_s18/near_target_all/results.json [--reference stand_in_place] [--out reach.md] [--png reach.png]
     python scripts/experiments/reach.py shipped/results.json candidate/results.json --tags shipped,candidate
 
 Results of ``scripts/evaluate.py``, the evaluator node, ``m2h-eval`` or the experiments, for episodes made
@@ -22,7 +22,7 @@ from m2h_ros.core.results import read_results
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
 from m2h_ros.errors import ConfigError, M2HError
-from m2h_ros.experiments.reach import gain_by_reach, gain_markdown, reach_markdown, reach_table
+from m2h_ros.experiments.reach import gain_by_reach, gain_markdown, plot_reach, reach_markdown, reach_table
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,6 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--reference", default="", help="also the final-step SI-SDR gain over this controller "
                         "(on the same episodes) of the walks that end on the target, left it, or never reached it")
     parser.add_argument("--out", type=Path, help="also write the table to this Markdown file")
+    parser.add_argument("--png", type=Path, help="also plot the mean distance to the target vs step here")
     args = parser.parse_args(argv)
     command = shlex.join(["python", "scripts/experiments/reach.py", *(sys.argv[1:] if argv is None else argv)])
     try:
@@ -53,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.reference:
             table += "\n\n" + gain_markdown(gain_by_reach(results, episodes, reference=args.reference),
                                              reference=args.reference)
+        if args.png:
+            print(f"plot: {plot_reach(results, episodes, args.png)}")
     except M2HError as exc:
         print(f"reach: error: {exc}", file=sys.stderr)
         return 2

@@ -16,7 +16,7 @@ from m2h_ros.core.results import EpisodeResult
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.oracle import ApproachOracle
-from m2h_ros.experiments.reach import REACH_GROUPS, gain_by_reach, geodesic_trace, reach_table
+from m2h_ros.experiments.reach import REACH_GROUPS, gain_by_reach, geodesic_trace, plot_reach, reach_table
 
 
 def test_the_oracle_reaches_the_target_node_and_holds_there(folder_library, env_config, small_episodes):
@@ -53,7 +53,7 @@ def test_the_oracle_is_no_registered_controller_and_knows_only_its_episodes(smal
         oracle.reset(0, EpisodeStart("elsewhere", "near_target", "speech", 3, 0))
 
 
-def test_replayed_walks_end_where_the_environment_took_them(folder_library, env_config, small_episodes):
+def test_replayed_walks_end_where_the_environment_took_them(folder_library, env_config, small_episodes, tmp_path):
     episodes = small_episodes(count=6, max_steps=10)
     by_id, rows = {e.episode_id: e for e in episodes}, []
     for controller in (ApproachOracle(len(episodes), episodes=episodes), RandomActions(len(episodes), seed=1)):
@@ -70,6 +70,9 @@ def test_replayed_walks_end_where_the_environment_took_them(folder_library, env_
     assert (oracle.controller, oracle.final_m, oracle.ends_on_target, oracle.ever_on_target) == \
         ("approach_oracle", 0.0, 1.0, 1.0)
     assert random.controller == "random" and random.start_m == oracle.start_m > 0
+    stopped = dataclasses.replace(rows[-1], actions=rows[-1].actions[:1])  # a walk that ended after one step
+    assert reach_table([stopped, rows[-2]], by_id)[0].episodes == 2  # episodes of unequal length summarise
+    assert plot_reach(rows, by_id, tmp_path / "reach.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     gains = gain_by_reach(rows + standing, by_id, reference="stand_in_place")
     assert gains[0] == ("approach_oracle", "", "near_target", "heard", REACH_GROUPS[0], 6, np.mean(np.arange(1, 7)) - 0.5)
     assert sum(g[5] for g in gains[1:]) == 6 and {g[0] for g in gains[1:]} == {"random"}
