@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from m2h_ros.core.plotting import agg_pyplot
+from m2h_ros.core.plotting import agg_pyplot, save_line_plot
 from m2h_ros.core.world.episodes import STOP
 from m2h_ros.errors import ConfigError
 
@@ -316,9 +316,4 @@ def plot_si_sdr_vs_step(results: Sequence[EpisodeResult], path: str | Path, *, t
     ax.set_xlabel("step")
     ax.set_ylabel("SI-SDR (dB, GT phase)")
     ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return Path(path)
+    return save_line_plot(fig, ax, path)

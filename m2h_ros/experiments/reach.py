@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m2h_ros.core.plotting import agg_pyplot
+from m2h_ros.core.plotting import agg_pyplot, save_line_plot
 from m2h_ros.core.results import EpisodeResult
 from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, Episode
 from m2h_ros.core.world.navgrid import turn_left, turn_right
@@ -110,12 +110,7 @@ def plot_reach(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]
         label = ", ".join(x for x in (controller, condition, task, split) if x)
         ax.plot(np.arange(padded.shape[1]), padded.mean(0), label=f"{label} (n={len(group)})")
     ax.set(xlabel="step", ylabel="geodesic distance to the target's node (m)", ylim=(0, None))
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return Path(path)
+    return save_line_plot(fig, ax, path)
 
 
 REACH_GROUPS = ("ends on target", "left it", "never on it")
