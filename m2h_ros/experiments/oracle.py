@@ -55,10 +55,8 @@ class ApproachOracle(TaskAware):
             grid = self._grid[slot]
             node = grid.nearest_node(obs.pose[slot, :2].astype(np.float64))
             action = approach_action(grid, node, heading_index(float(obs.pose[slot, 2])), int(self._goal[slot]))
-            if action is None and self._turns:
-                action = TURN_LEFT
-            elif action is None:
-                action = int(hold_in_place(self._holds[slot], self.far[slot]))
+            if action is None:
+                action = TURN_LEFT if self._turns else int(hold_in_place(self._holds[slot], self.far[slot]))
                 self._holds[slot] += 1
             actions[slot] = action
         return actions

@@ -46,7 +46,7 @@ def geodesic_trace(episode: Episode, actions: Sequence[int]) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Reach:
-    """One controller's walks in one task and sound split."""
+    """One controller's walks in one experiment condition, task and sound split."""
 
     controller: str
     condition: str  # what an experiment varied ("" outside experiments)
@@ -86,17 +86,26 @@ def _padded(group: list[np.ndarray]) -> np.ndarray:
     return np.array([np.pad(t, (0, length - len(t)), mode="edge") for t in group])
 
 
+REACH_GROUPS = ("ends on target", "left it", "never on it")
+
+
+def walk_group(trace: np.ndarray) -> str:
+    """Which of :data:`REACH_GROUPS` a walk's geodesic trace falls in (on the target's node after some action)."""
+    if trace[-1] == 0:
+        return REACH_GROUPS[0]
+    return REACH_GROUPS[1] if (trace[1:] == 0).any() else REACH_GROUPS[2]
+
+
 def reach_table(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]) -> list[Reach]:
     """:class:`Reach` rows, sorted by controller, condition, task and split; ``episodes`` by episode id."""
     rows = []
     for (controller, condition, task, split), group in _traces(results, episodes).items():
-        padded = _padded(group)
-        on_target = [t[1:] == 0 for t in group]
+        padded, groups = _padded(group), [walk_group(t) for t in group]
         rows.append(Reach(controller, condition, task, split, len(group), start_m=float(padded[:, 0].mean()),
                           halfway_m=float(padded[:, (padded.shape[1] - 1) // 2].mean()),
                           final_m=float(np.mean([t[-1] for t in group])),
-                          ends_on_target=float(np.mean([t[-1] == 0 for t in group])),
-                          ever_on_target=float(np.mean([bool(o.any()) for o in on_target]))))
+                          ends_on_target=groups.count(REACH_GROUPS[0]) / len(groups),
+                          ever_on_target=1 - groups.count(REACH_GROUPS[2]) / len(groups)))
     return rows
 
 
@@ -113,9 +122,6 @@ def plot_reach(results: Iterable[EpisodeResult], episodes: Mapping[str, Episode]
     return save_line_plot(fig, ax, path)
 
 
-REACH_GROUPS = ("ends on target", "left it", "never on it")
-
-
 def gain_by_reach(results: Sequence[EpisodeResult], episodes: Mapping[str, Episode], *, reference: str
                   ) -> list[tuple[str, str, str, str, str, int, float]]:
     """(controller, condition, task, sound split, group, episodes, mean final-step SI-SDR minus ``reference``'s
@@ -130,8 +136,7 @@ def gain_by_reach(results: Sequence[EpisodeResult], episodes: Mapping[str, Episo
             continue
         if (result.episode_id, result.condition) not in final:
             raise ConfigError(f"{result.controller} played {result.episode_id!r}, {reference} did not")
-        trace = _trace(result, episodes)
-        group = REACH_GROUPS[0] if trace[-1] == 0 else REACH_GROUPS[1] if (trace[1:] == 0).any() else REACH_GROUPS[2]
+        group = walk_group(_trace(result, episodes))
         gains.setdefault((result.controller, result.condition, result.task, result.sound_split, group), []).append(
             result.si_sdr[-1] - final[result.episode_id, result.condition])
     order = {g: i for i, g in enumerate(REACH_GROUPS)}
