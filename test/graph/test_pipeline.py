@@ -133,8 +133,10 @@ def start_graph(processes, data_dir, tmp_path, *, sim: dict, evaluator: bool = T
 
 
 def test_killed_controller_is_named_and_the_bag_stays_readable(processes, small_library, small_data_dir, tmp_path):
-    # Enough episodes that the run cannot end before the kill.
-    procs = start_graph(processes, small_data_dir, tmp_path, sim=dict(num_episodes=30, step_timeout_s=3.0))
+    # Enough episodes that the run cannot end before the kill. The timeout leaves room for the separator's
+    # publishes to stall after the kill (likely Fast DDS's shared-memory transport waiting on the dead
+    # reader's port): with 3 s, one fresh-clone run in session 20 named separator_node instead.
+    procs = start_graph(processes, small_data_dir, tmp_path, sim=dict(num_episodes=30, step_timeout_s=10.0))
     bag = tmp_path / "bag"
     deadline = time.monotonic() + 120
     while not (tmp_path / "scores" / "results.json").exists():  # the first episode is scored
