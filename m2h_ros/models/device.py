@@ -1,4 +1,9 @@
-"""Where a training run puts its networks: one rule for every trainer."""
+"""Where a training run puts its networks: one rule for every trainer.
+
+On CUDA the trainers ask for deterministic kernels (cuDNN's deterministic algorithms, PyTorch's
+deterministic mode, cuBLAS's fixed workspace): without them two runs of one seed, or a resumed run and
+an uninterrupted one, part after a few updates (measured on an H200, docs/measurements.md), and a
+resumed run must equal an uninterrupted one on any device."""
 
 from __future__ import annotations
 
@@ -17,10 +22,22 @@ def check_device(name: str, *, field: str) -> None:
 
 
 def training_device(name: str, *, field: str) -> torch.device:
-    """The device ``name`` means on this machine; under torchrun, CUDA device LOCAL_RANK (one GPU per worker)."""
+    """The device ``name`` means on this machine; under torchrun, CUDA device LOCAL_RANK (one GPU per worker;
+    with more workers than GPUs, they share them in turn)."""
     check_device(name, field=field)
     if name == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"{field}='cuda' but no CUDA device is available")
     if name != "cpu" and torch.cuda.is_available():
-        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        deterministic_cuda()
+        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")) % torch.cuda.device_count())
     return torch.device("cpu")
+
+
+def deterministic_cuda() -> None:
+    """Deterministic CUDA kernels for this process (the workspace setting counts only before cuBLAS first
+    runs, so a trainer asks for it before it builds its networks); an operation without a deterministic
+    kernel warns instead of failing."""
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.backends.cudnn.deterministic = True
+    torch.backends.cudnn.benchmark = False
+    torch.use_deterministic_algorithms(True, warn_only=True)

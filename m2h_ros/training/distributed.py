@@ -13,9 +13,12 @@ import torch.distributed as dist
 def init_distributed() -> tuple[int, int]:
     """(rank, world size): joins the torchrun group when launched by torchrun, else (0, 1)."""
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
-        if torch.cuda.is_available():
-            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))  # one GPU per worker
-        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+        gpus = torch.cuda.device_count()
+        if gpus:
+            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")) % gpus)  # as models.device.training_device
+        # nccl wants one GPU per worker; workers sharing a GPU all-reduce through gloo (which takes CUDA tensors).
+        one_gpu_each = gpus and int(os.environ.get("LOCAL_WORLD_SIZE", "1")) <= gpus
+        dist.init_process_group("nccl" if one_gpu_each else "gloo")
     if dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()
     return 0, 1

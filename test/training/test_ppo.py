@@ -267,7 +267,7 @@ def test_training_writes_checkpoints_and_resumes_exactly(fast_env, separator_pat
         torch.testing.assert_close(warm.net.state_dict()[name], tensor, rtol=0, atol=0, msg=name)
     loaded = load_policy(whole.checkpoint, policy_kind="quality")
     for name, tensor in whole.net.state_dict().items():
-        torch.testing.assert_close(loaded.net.state_dict()[name], tensor)
+        torch.testing.assert_close(loaded.net.state_dict()[name], tensor.cpu())  # loaded on the CPU
     assert loaded.metadata["updates"] == 4 and loaded.metadata["command"] == "test"
     refined = load_separator(tmp_path / "whole" / "separator.pt", expected_config=TINY_SEPARATOR)
     original = load_separator(separator_path)
@@ -344,6 +344,8 @@ def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folde
 
     from m2h_ros.models import policy as policy_module  # noqa: PLC0415
 
+    # cuDNN convolves in TF32 by default, to 1e-3 (measured on an H200): compare the paths in float32.
+    monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
     env = dataclasses.replace(fast_env, camera=True, camera_config=CameraConfig(width=64, height=64))
     config = tiny(env, separator_path, n_envs=4, n_minibatches=2, preset="compact", n_steps=STEPS + 2)
     trainer = PPOTrainer(config, folder_library, out_dir=tmp_path, progress=False)
@@ -358,7 +360,8 @@ def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folde
     rollout.memory = [m * torch.rand(m.shape, generator=g).contiguous(memory_format=torch.channels_last) * 2
                       for m in rollout.memory]
     with torch.no_grad():
-        torch.nn.init.normal_(trainer.separator.refiner.body[-1].weight, std=0.1, generator=g)
+        weight = trainer.separator.refiner.body[-1].weight
+        weight.copy_(torch.randn(weight.shape, generator=g) * 0.1)
     start = copy.deepcopy((trainer.net.state_dict(), trainer.optimizer.state_dict(),
                            trainer.separator.refiner.state_dict(), trainer.refiner_optimizer.state_dict()))
     rng_state = copy.deepcopy(trainer.rng.bit_generator.state)
@@ -374,8 +377,8 @@ def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folde
         return losses, copy.deepcopy((trainer.net.state_dict(), trainer.separator.refiner.state_dict()))
 
     def plain_refiner():  # the update as it was written before, on NCHW tensors
-        monaural, memory = torch.stack(rollout.monaural).contiguous(), torch.stack(rollout.memory).contiguous()
-        target, starts = torch.stack(rollout.target).contiguous(), torch.stack(rollout.starts)
+        monaural, memory, target, starts = (torch.stack(x).contiguous().to(trainer.device) for x in
+                                            (rollout.monaural, rollout.memory, rollout.target, rollout.starts))
         params, per_batch, total = list(trainer.separator.refiner.parameters()), 2, []
         for _ in range(config.refiner_epochs):
             order = trainer.rng.permutation(config.n_envs)
@@ -406,7 +409,8 @@ def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folde
     assert fast_losses == pytest.approx(plain_losses, rel=1e-4, abs=1e-6, nan_ok=True)  # teacher_ce: nan, no teacher
     for fast, plain in zip(fast_weights, plain_weights, strict=True):
         for name, tensor in plain.items():
-            torch.testing.assert_close(fast[name], tensor, rtol=1e-4, atol=1e-6, msg=name)
+            # atol: float32 rounding of near-zero weights (1.6e-6 seen on CUDA); an Adam step is lr = 3e-3
+            torch.testing.assert_close(fast[name], tensor, rtol=1e-4, atol=1e-5, msg=lambda m, name=name: f"{name}: {m}")
     assert any(not torch.equal(t, start[0][n]) for n, t in fast_weights[0].items())  # the update did move them
 
 

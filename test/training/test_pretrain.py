@@ -65,7 +65,7 @@ def test_checkpoint_rebuilds_with_classes_and_metadata(trained):
     meta = loaded.metadata
     assert meta["mixture_power"] > 0 and meta["command"] == "test" and meta["resumed_from"] is None
     assert meta["validation"] == {"sequences": 6, "steps": 3} and meta["machine"]["cpu_count"] >= 1
-    assert meta["machine"]["device"] == ("cuda" if torch.cuda.is_available() else "cpu")  # device "auto"
+    assert torch.device(meta["machine"]["device"]).type == ("cuda" if torch.cuda.is_available() else "cpu")  # "auto"
     side = json.loads(trained.checkpoint.with_suffix(".json").read_text())
     assert side["final"] == meta["final"]
     assert trained.checkpoint.with_name("sep_loss.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -83,19 +83,20 @@ def test_the_command_line_sets_an_auxiliary_loss_weight(flag):
 def rollout_outputs(trainer, rollout):
     """The policy's outputs over one rollout's states, as the update computes them."""
     with torch.no_grad():
-        return trainer.net.evaluate(rollout.inputs.flat(), trainer.hidden_start, torch.stack(rollout.starts))
+        return trainer.net.evaluate(rollout.inputs.flat().to(trainer.device), trainer.hidden_start,
+                                    torch.stack(rollout.starts).to(trainer.device))
 
 
 def _teacher_ce(trainer, rollout) -> float:
     """Cross-entropy from the teacher to the policy on one rollout's states."""
     logits = rollout_outputs(trainer, rollout).logits
-    return float(-(torch.stack(rollout.teacher) * torch.log_softmax(logits, -1)).sum(-1).mean())
+    return float(-(torch.stack(rollout.teacher).to(logits.device) * torch.log_softmax(logits, -1)).sum(-1).mean())
 
 
 def _location_loss(trainer, rollout) -> float:
     """Huber loss of the location head's predictions on one rollout's states (training.location)."""
     predicted = trainer.location_head(rollout_outputs(trainer, rollout).outputs)
-    return float(F.smooth_l1_loss(predicted, torch.stack(rollout.offsets)))
+    return float(F.smooth_l1_loss(predicted, torch.stack(rollout.offsets).to(predicted.device)))
 
 
 # term -> (kind, settings, the rollout's labels and their width, the logged loss, the loss on a rollout)
