@@ -10,35 +10,32 @@ A run directory or its log.csv. A figure the run's kind does not log (empty or n
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import statistics
 import sys
 from pathlib import Path
 
+from m2h_ros.errors import ConfigError
+from m2h_ros.experiments.training_log import read_training_log
+
 RATE_WINDOW = 100
 MEAN_COLUMNS = ("return_window", "location_error_m", "success_window")
 
 
-def read_log(path: Path) -> list[dict[str, str]]:
-    log = path / "log.csv" if path.is_dir() else path
-    if not log.is_file():
-        raise SystemExit(f"run_summary: no training log at {log}")
-    with open(log, newline="") as f:
-        rows = list(csv.DictReader(f))
-    if not rows or "sps" not in rows[0]:
-        raise SystemExit(f"run_summary: {log} holds no PPO log rows (a header with 'sps' and one row per update)")
-    return rows
+def read_log(path: Path) -> list[dict[str, float]]:
+    try:
+        return read_training_log(path)
+    except ConfigError as exc:
+        raise SystemExit(f"run_summary: {exc}") from exc
 
 
-def mean_of_last(rows: list[dict[str, str]], column: str) -> float:
-    values = [float(row[column]) for row in rows if row.get(column) not in (None, "")]
-    values = [value for value in values if not math.isnan(value)]
+def mean_of_last(rows: list[dict[str, float]], column: str) -> float:
+    values = [row[column] for row in rows if column in row and not math.isnan(row[column])]
     return statistics.fmean(values) if values else math.nan
 
 
-def summary(rows: list[dict[str, str]], *, last: int) -> dict[str, float]:
-    rates = [float(row["sps"]) for row in rows]
+def summary(rows: list[dict[str, float]], *, last: int) -> dict[str, float]:
+    rates = [row["sps"] for row in rows]
     figures = {"updates": len(rows), "env_steps": int(rows[-1]["env_steps"]),
                "median_sps": statistics.median(rates),
                f"first_{RATE_WINDOW}_sps": statistics.median(rates[:RATE_WINDOW]),

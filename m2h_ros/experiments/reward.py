@@ -8,7 +8,6 @@ final-step SI-SDR with 95% CI, each run's paired difference to Stand In-Place, i
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 from collections.abc import Sequence
@@ -25,6 +24,7 @@ from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.jobs import EvalJob, run_eval_job, run_jobs
+from m2h_ros.experiments.training_log import read_training_log
 from m2h_ros.paths import repo_relative
 
 REFERENCE = "stand_in_place"
@@ -65,9 +65,8 @@ def load_run(directory: Path) -> RewardRun:
     directory = Path(directory).resolve()  # the policy path goes to Ray workers, whose folder may differ
     try:
         config = json.loads((directory / "config.json").read_text())
-        with open(directory / "log.csv", newline="") as stream:
-            log = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(stream)]
-    except (OSError, ValueError) as exc:
+        log = read_training_log(directory)
+    except (OSError, ValueError, ConfigError) as exc:
         raise ConfigError(f"{directory} is not a finished training run: {exc}") from exc
     if config.get("kind") != "quality":
         raise ConfigError(f"{directory} trained {config.get('kind')!r}, not pi^Q (quality)")

@@ -41,3 +41,9 @@ def test_a_missing_or_foreign_log_is_named(run_summary, tmp_path):
     (tmp_path / "log.csv").write_text("a,b\n1,2\n")
     with pytest.raises(SystemExit, match="holds no PPO log rows"):
         run_summary.read_log(tmp_path)
+
+
+def test_a_cell_that_is_no_number_is_named(run_summary, tmp_path):
+    (tmp_path / "log.csv").write_text("update,sps\n1,fast\n")
+    with pytest.raises(SystemExit, match=r"log.csv: could not convert string to float: 'fast'"):
+        run_summary.read_log(tmp_path)
