@@ -10,14 +10,14 @@ import torch
 import torch.distributed as dist
 
 
-def init_distributed() -> tuple[int, int]:
-    """(rank, world size): joins the torchrun group when launched by torchrun, else (0, 1)."""
+def init_distributed(device: torch.device) -> tuple[int, int]:
+    """(rank, world size): joins the torchrun group when launched by torchrun, else (0, 1). ``device``: where
+    this worker trains (``models.device.training_device``)."""
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
-        gpus = torch.cuda.device_count()
-        if gpus:
-            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")) % gpus)  # as models.device.training_device
-        # nccl wants one GPU per worker; workers sharing a GPU all-reduce through gloo (which takes CUDA tensors).
-        one_gpu_each = gpus and int(os.environ.get("LOCAL_WORLD_SIZE", "1")) <= gpus
+        if device.type == "cuda":
+            torch.cuda.set_device(device)
+        # nccl takes CUDA tensors, one GPU per worker; gloo the CPU's, and CUDA tensors of workers sharing a GPU.
+        one_gpu_each = device.type == "cuda" and int(os.environ.get("LOCAL_WORLD_SIZE", "1")) <= torch.cuda.device_count()
         dist.init_process_group("nccl" if one_gpu_each else "gloo")
     if dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()

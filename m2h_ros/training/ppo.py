@@ -342,9 +342,9 @@ class PPOTrainer:
     def __init__(self, config: PPOConfig, library: SoundLibrary, *, out_dir: Path,
                  rir_cache_dir: Path | None = None, progress: bool = True, command: str | None = None) -> None:
         self.config, self.out_dir, self.command = config, Path(out_dir), command or "PPOTrainer"
-        self.rank, self.world = init_distributed()
-        self.progress = progress and self.rank == 0
         self.device = training_device(config.device, field="PPOConfig.device")
+        self.rank, self.world = init_distributed(self.device)
+        self.progress = progress and self.rank == 0
         torch.set_num_threads(config.threads)
         torch.manual_seed(config.seed)
         self.policy_config = config.policy_config()

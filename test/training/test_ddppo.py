@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from m2h_ros.core.world.env import BatchEnv
@@ -18,10 +19,13 @@ from test_ppo import STEPS, tiny
 HERE = Path(__file__).resolve().parent
 
 
-def test_two_workers_keep_identical_weights(fast_env, separator_path, folder_library, tmp_path):
+# auto: the CPU here (gloo); on a one-GPU machine both workers share the GPU (gloo on CUDA tensors), and
+# "cpu" checks a CPU run there does not reach for nccl.
+@pytest.mark.parametrize("device", ["auto", "cpu"] if torch.cuda.is_available() else ["auto"])
+def test_two_workers_keep_identical_weights(device, fast_env, separator_path, folder_library, tmp_path):
     # The shipped pi^Q's recipe: SI-SDR reward and the location head, whose weights must stay in sync too.
     config = tiny(fast_env, separator_path, updates=2, checkpoint_every=2, quality_reward="si_sdr", final_weight=0.0,
-                  location_coef=1.0)
+                  location_coef=1.0, device=device)
     config = dataclasses.replace(config, episodes=dataclasses.replace(config.episodes, count=4))
     # Episodes and RIR banks first, so the workers do not build the same cache files at once.
     env = BatchEnv(episodes_for(config.episode_config(), folder_library), folder_library, n_envs=1, config=fast_env)
