@@ -82,15 +82,27 @@ def load_run(directory: Path) -> RewardRun:
 
 
 def check_comparable(runs: Sequence[RewardRun]) -> None:
-    """The runs differ in their reward only (and where they ran): same seed, episodes, budget."""
+    """The runs differ in their reward only (and where they ran): same seed, episodes, budget. Runs that
+    continue earlier ones (a second stage, ``--init-policy``) may each start from their own reward's
+    earlier run, if those are comparable in turn."""
     if len({r.label for r in runs}) != len(runs):
         raise ConfigError(f"two runs share a reward: {[r.label for r in runs]}")
+    starts = [r.config.get("init_policy") or "" for r in runs]
+    own_starts = len(set(starts)) > 1
     first = runs[0].config
     for run in runs[1:]:
-        changed = sorted(k for k in set(first) | set(run.config)
-                         if k not in VARYING and first.get(k) != run.config.get(k))
+        changed = sorted(k for k in set(first) | set(run.config) if k not in VARYING
+                         and not (own_starts and k == "init_policy") and first.get(k) != run.config.get(k))
         if changed:
             raise ConfigError(f"{run.directory} differs from {runs[0].directory} in {', '.join(changed)}")
+    if own_starts:
+        if not all(starts):
+            raise ConfigError("some runs start from a policy (--init-policy) and some from scratch")
+        earlier = [load_run(Path(start).parent) for start in starts]
+        for run, stage in zip(runs, earlier, strict=True):
+            if stage.label != run.label:
+                raise ConfigError(f"{run.directory} continues {stage.directory}, which trained {stage.label}")
+        check_comparable(earlier)
 
 
 def reward_jobs(runs: Sequence[RewardRun], *, sound_splits: Sequence[str], count: int, chunk: int,

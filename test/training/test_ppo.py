@@ -434,6 +434,18 @@ def test_reward_experiment_reads_compares_and_plots_runs(fast_env, separator_pat
 
     with pytest.raises(ConfigError, match="share a reward"):
         reward.check_comparable([runs[0], runs[0]])
+    # Second stages, each from its own reward's first run, or all from one policy: comparable; from another
+    # reward's run: refused.
+    for name, start in (("nmse", "nmse"), ("snr", "snr"), ("snr_from_nmse", "nmse"), ("si_sdr_from_snr", "snr")):
+        train(dataclasses.replace(config, quality_reward=name.split("_from")[0], seed=1,
+                                  init_policy=str(tmp_path / start / "policy.pt")),
+              folder_library, out_dir=tmp_path / f"{name}_stage2", progress=False)
+    stage2 = {name: reward.load_run(tmp_path / f"{name}_stage2") for name in ("nmse", "snr", "snr_from_nmse",
+                                                                             "si_sdr_from_snr")}
+    reward.check_comparable([stage2["nmse"], stage2["snr"]])
+    reward.check_comparable([stage2["nmse"], stage2["snr_from_nmse"]])
+    with pytest.raises(ConfigError, match="continues .*snr, which trained pi\\^Q \\(snr\\)"):
+        reward.check_comparable([stage2["nmse"], stage2["si_sdr_from_snr"]])
     train(dataclasses.replace(config, quality_reward="si_sdr", seed=1), folder_library, out_dir=tmp_path / "seed1",
           progress=False)
     with pytest.raises(ConfigError, match="differs .* in seed$"):
