@@ -8,7 +8,8 @@ separator training step, and a PPO minibatch update of the policy, for the compa
 * ``separator train``: forward, L1 on all three outputs, backward and one Adam step at batch 32 (the
   training modules, BatchNorm in train mode).
 * ``policy update``: one PPO minibatch as ``training/ppo.py`` runs it: ``PolicyNet.evaluate`` over a
-  20-step rollout of 16 slots (the shipped recipe's shape) with the camera, backward and an Adam step.
+  20-step rollout of 16 slots (PPOConfig's defaults; the shipped pi^Q's recipe updates 32 slots at once)
+  with the camera, backward and an Adam step.
 
 Each candidate's CPU and CUDA figures are timed in alternating rounds (the CPU with all its cores as
 torch threads unless ``--cpu-threads``), after warm-up; CUDA timings synchronise the device. Printed: the
@@ -34,6 +35,7 @@ from m2h_ros.models.inference import fuse_for_inference  # noqa: E402
 from m2h_ros.models.policy import PolicyConfig, PolicyNet, policy_input_buffers  # noqa: E402
 from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.core.audio.stft import DEFAULT_STFT  # noqa: E402
+from m2h_ros.machine import availability_line  # noqa: E402
 
 INFERENCE_BATCHES = (1, 16, 256)
 TRAIN_BATCH = 32
@@ -167,6 +169,7 @@ def main() -> None:
         gpu = "none (CPU figures only)"
     print(f"torch {torch.__version__}; GPU: {gpu}; {os.cpu_count()} CPUs, {args.cpu_threads} torch threads on the "
           f"CPU; {args.repeats} rounds; load average {load_average()}")
+    print(availability_line())
     print("ms per call, median (min); ratio = CPU median / CUDA median")
     for preset in args.presets:
         separator = SeparatorConfig.preset(preset)
