@@ -46,6 +46,11 @@ def autogroup_scheduling() -> bool:
     return AUTOGROUP.exists() and AUTOGROUP.read_text().strip() == "1"
 
 
+def load_average() -> str:
+    """The 1, 5 and 15 minute load averages, as a benchmark prints them ("0.52, 0.61, 0.70")."""
+    return ", ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
 def availability_line() -> str:
     """One line for a benchmark's output: cores available to two processes, load average, scheduler."""
     return (f"cores available to two processes: {cores_available():.2f} of {os.cpu_count()} (load average "

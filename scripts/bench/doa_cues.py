@@ -33,6 +33,7 @@ from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import MOVE_FORWARD, EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
+from m2h_ros.machine import load_average  # noqa: E402
 
 CUES = ("ITD, mixture", "ITD, target alone", "ILD, mixture", "ILD, f^B binaural", "ILD, target alone")
 
@@ -100,7 +101,7 @@ def main() -> None:
               f"{np.mean(np.sign(cue[lateral]) == np.sign(target[lateral])):>21.2f}")
     print(f"DoA controller steps within 45 deg of the target's bearing in {np.mean(facing):.2f} of "
           f"{len(facing)} episodes")
-    print(f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"load average: {load_average()}")
 
 
 if __name__ == "__main__":

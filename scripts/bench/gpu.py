@@ -35,15 +35,11 @@ from m2h_ros.models.inference import fuse_for_inference  # noqa: E402
 from m2h_ros.models.policy import PolicyConfig, PolicyNet, policy_input_buffers  # noqa: E402
 from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.core.audio.stft import DEFAULT_STFT  # noqa: E402
-from m2h_ros.machine import availability_line  # noqa: E402
+from m2h_ros.machine import availability_line, load_average  # noqa: E402
 
 INFERENCE_BATCHES = (1, 16, 256)
 TRAIN_BATCH = 32
 ROLLOUT_STEPS, ROLLOUT_SLOTS = 20, 16
-
-
-def load_average() -> str:
-    return ", ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def synchronise(device: torch.device) -> None:

@@ -57,7 +57,7 @@ from m2h_ros.models.separator import (  # noqa: E402
     separate_clip,
 )
 from m2h_ros.models.threads import inference_threads  # noqa: E402
-from m2h_ros.machine import availability_line  # noqa: E402
+from m2h_ros.machine import availability_line, load_average  # noqa: E402
 from m2h_ros.models.unet import UNet  # noqa: E402
 
 THREADS = (1, 2)
@@ -84,10 +84,6 @@ def timed_rounds(fns: dict[str, Callable[[], object]], repeats: int, *, threads:
             cpu[name].append(time.process_time() - start_cpu)
     return {name: {"median": 1000.0 * float(np.median(wall[name])), "min": 1000.0 * min(wall[name]),
                    "cpu": 1000.0 * min(cpu[name])} for name in fns}
-
-
-def load_average() -> str:
-    return ", ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def with_running_stats(separator: Separator) -> Separator:
