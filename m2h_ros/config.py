@@ -16,6 +16,7 @@ import yaml
 from m2h_ros.errors import ConfigError
 
 SCALAR_TYPES = (bool, int, float, str)
+DEVICES = ("auto", "cpu", "cuda")  # torch devices a run may ask for; auto: CUDA when present, else the CPU
 
 
 def reject_unknown_fields(cls: type, values: Mapping[str, Any]) -> None:

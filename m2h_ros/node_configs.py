@@ -3,7 +3,7 @@
 from dataclasses import dataclass
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES
-from m2h_ros.config import Config, setting
+from m2h_ros.config import DEVICES, Config, setting
 from m2h_ros.errors import ConfigError
 
 TASKS = ("near_target", "far_target")
@@ -68,6 +68,9 @@ class SeparatorNodeConfig(Config):
     torch_threads: int = setting(0, "torch threads; 0: models.threads.inference_threads(1) = 1, "
                                  "the fastest at batch 1 on 2 cores (fused compact: 3.7 ms vs 4.2 ms "
                                  "with 2, scripts/bench/separator.py)", min=0, max=64)
+    device: str = setting("cpu", "torch device of the separator: cpu, cuda, or auto (CUDA when present). The "
+                          "in-process evaluations run on the CPU: cpu gives their numbers bit for bit, a GPU "
+                          "the same to float tolerance", choices=DEVICES)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from m2h_ros.errors import AudioError, M2HError
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator
 from m2h_ros.models.inference import fuse_for_inference
 from m2h_ros.models.separator import separate_clip
+from m2h_ros.models.device import DEVICES, resolve_device
 from m2h_ros.models.threads import inference_threads
 
 # Checkpoint metadata entry giving the mean power of the training mixtures; inputs are scaled to it.
@@ -105,6 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--target", required=True, help="target class, one of the checkpoint's classes (e.g. speech)")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT,
                         help=f"separator checkpoint (default: {DEFAULT_SEPARATOR_CHECKPOINT})")
+    parser.add_argument("--device", default="cpu", choices=DEVICES,
+                        help="torch device: cpu (default), cuda, or auto (CUDA when present)")
     return parser
 
 
@@ -113,7 +116,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     threads = torch.get_num_threads()
     torch.set_num_threads(inference_threads(1))  # frames go through one at a time
     try:
-        loaded = load_separator(args.checkpoint)
+        loaded = load_separator(args.checkpoint, map_location=resolve_device(args.device, field="--device"))
         loaded.class_index(args.target)  # fail on an unknown class before reading the audio
         try:
             audio, sample_rate = sf.read(args.input, dtype="float32", always_2d=True)

@@ -1,6 +1,6 @@
-"""Where a training run puts its networks: one rule for every trainer.
+"""Where a run puts its networks: one rule for every trainer, the separator node and ``m2h-separate``.
 
-On CUDA the trainers ask for deterministic kernels (cuDNN's deterministic algorithms, PyTorch's
+On CUDA they ask for deterministic kernels (cuDNN's deterministic algorithms, PyTorch's
 deterministic mode, cuBLAS's fixed workspace): without them two runs of one seed, or a resumed run and
 an uninterrupted one, part after a few updates (measured on an H200, docs/measurements.md), and a
 resumed run must equal an uninterrupted one on any device."""
@@ -11,9 +11,10 @@ import os
 
 import torch
 
+from m2h_ros.config import DEVICES
 from m2h_ros.errors import ConfigError
 
-DEVICES = ("auto", "cpu", "cuda")  # auto: CUDA when present, else the CPU
+__all__ = ["DEVICES", "check_device", "deterministic_cuda", "resolve_device"]
 
 
 def check_device(name: str, *, field: str) -> None:
@@ -21,9 +22,10 @@ def check_device(name: str, *, field: str) -> None:
         raise ConfigError(f"{field}={name!r} must be auto, cpu or cuda")
 
 
-def training_device(name: str, *, field: str) -> torch.device:
+def resolve_device(name: str, *, field: str) -> torch.device:
     """The device ``name`` means on this machine; under torchrun, CUDA device LOCAL_RANK (one GPU per worker;
-    with more workers than GPUs, they share them in turn)."""
+    with more workers than GPUs, they share them in turn). ``cuda`` without a CUDA device is a ConfigError
+    naming ``field``."""
     check_device(name, field=field)
     if name == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"{field}='cuda' but no CUDA device is available")

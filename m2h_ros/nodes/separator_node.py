@@ -20,6 +20,7 @@ from rclpy.node import Node  # noqa: E402
 
 from m2h_ros import topics  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
+from m2h_ros.models.device import resolve_device  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.models.threads import inference_threads  # noqa: E402
 from m2h_ros.node_configs import SeparatorNodeConfig  # noqa: E402
@@ -37,7 +38,8 @@ class SeparatorNode(Node):
         self.config: SeparatorNodeConfig = declare_config(self, SeparatorNodeConfig)
         self.threads = self.config.torch_threads or inference_threads(1)
         torch.set_num_threads(self.threads)
-        loaded = load_separator(self.config.checkpoint or DEFAULT_SEPARATOR_CHECKPOINT)
+        device = resolve_device(self.config.device, field="separator_node.device")
+        loaded = load_separator(self.config.checkpoint or DEFAULT_SEPARATOR_CHECKPOINT, map_location=device)
         self.runner = SeparatorRunner(loaded, 1)
         self.stft = loaded.stft
         if self.config.target_class:
@@ -59,7 +61,7 @@ class SeparatorNode(Node):
         self.episode_id: str | None = None
         self.latencies: list[float] = []
         self.get_logger().info(f"ready: separator {loaded.path.name} ({loaded.config.summary}), "
-                               f"{self.threads} torch thread(s)")
+                               f"on {device}, {self.threads} torch thread(s)")
 
     def on_episode(self, msg: EpisodeInfo) -> None:
         self.classes[msg.episode_id] = msg.target_class

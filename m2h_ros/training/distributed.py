@@ -12,7 +12,7 @@ import torch.distributed as dist
 
 def init_distributed(device: torch.device) -> tuple[int, int]:
     """(rank, world size): joins the torchrun group when launched by torchrun, else (0, 1). ``device``: where
-    this worker trains (``models.device.training_device``)."""
+    this worker trains (``models.device.resolve_device``)."""
     if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
         if device.type == "cuda":
             torch.cuda.set_device(device)

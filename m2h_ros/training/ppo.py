@@ -88,7 +88,7 @@ from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
-from m2h_ros.models.device import DEVICES, check_device, training_device
+from m2h_ros.models.device import DEVICES, check_device, resolve_device
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import (PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_input_buffers,  # noqa: E402
                                    load_policy, policy_inputs, save_policy, sliced_policy_inputs, warm_start)
@@ -342,7 +342,7 @@ class PPOTrainer:
     def __init__(self, config: PPOConfig, library: SoundLibrary, *, out_dir: Path,
                  rir_cache_dir: Path | None = None, progress: bool = True, command: str | None = None) -> None:
         self.config, self.out_dir, self.command = config, Path(out_dir), command or "PPOTrainer"
-        self.device = training_device(config.device, field="PPOConfig.device")
+        self.device = resolve_device(config.device, field="PPOConfig.device")
         self.rank, self.world = init_distributed(self.device)
         self.progress = progress and self.rank == 0
         torch.set_num_threads(config.threads)

@@ -62,7 +62,7 @@ from tqdm import tqdm  # noqa: E402
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
-from m2h_ros.models.device import DEVICES, check_device, training_device
+from m2h_ros.models.device import DEVICES, check_device, resolve_device
 from m2h_ros.models.checkpoint import PRETRAINED_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import BACKBONES, PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
@@ -142,7 +142,7 @@ class PretrainConfig:
         check_device(self.device, field="PretrainConfig.device")
 
     def torch_device(self) -> torch.device:
-        return training_device(self.device, field="PretrainConfig.device")
+        return resolve_device(self.device, field="PretrainConfig.device")
 
     def result_fields(self) -> dict[str, Any]:
         """The fields a resumed run must share with the run it continues. Not the epoch counts while

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 from pipeline_helpers import TINY_SIM, node_env
 
@@ -90,6 +91,19 @@ def test_invalid_choice_is_reported(processes):
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == 2
     assert "SimConfig.task = 'bogus': must be one of 'near_target', 'far_target'" in err
+
+
+def test_separator_device_is_checked(processes):
+    """device:=cuda on a machine without CUDA ends the node with the reason; with CUDA it runs there."""
+    proc = processes.start([ROS2RUN, "m2h_ros", "separator_node", "--ros-args", "-p", "device:=cuda"])
+    if torch.cuda.is_available():
+        assert any("ready:" in line and "on cuda:0" in line for line in proc.stderr), "no ready line on cuda:0"
+        code, _, err = processes.interrupt(proc)
+        assert code == 0, err
+        return
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert "separator_node.device='cuda' but no CUDA device is available" in err
 
 
 def test_m2h_separate_console_script_is_installed():

@@ -103,3 +103,18 @@ def test_missing_checkpoints_and_files(tmp_path: Path, monkeypatch: pytest.Monke
     with pytest.raises(SystemExit) as info:
         run(source)  # argparse usage errors also exit with 2
     assert info.value.code == 2
+
+
+def test_device_option(tmp_path: Path, checkpoint: Path, capsys: pytest.CaptureFixture) -> None:
+    source = tmp_path / "in.wav"
+    sf.write(source, stereo(1.5, 16000), 16000, subtype="FLOAT")
+    assert run(source, tmp_path / "default.wav", "--target", "speech", "--checkpoint", checkpoint) == 0
+    assert run(source, tmp_path / "cpu.wav", "--target", "speech", "--checkpoint", checkpoint, "--device", "cpu") == 0
+    default, cpu = sf.read(tmp_path / "default.wav")[0], sf.read(tmp_path / "cpu.wav")[0]
+    np.testing.assert_array_equal(cpu, default)
+    code = run(source, tmp_path / "cuda.wav", "--target", "speech", "--checkpoint", checkpoint, "--device", "cuda")
+    if torch.cuda.is_available():
+        assert code == 0
+        np.testing.assert_allclose(sf.read(tmp_path / "cuda.wav")[0], cpu, atol=1e-4 * np.abs(cpu).max())
+    else:
+        assert code == 2 and "--device='cuda' but no CUDA device is available" in capsys.readouterr().err
