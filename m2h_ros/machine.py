@@ -46,6 +46,11 @@ def autogroup_scheduling() -> bool:
     return AUTOGROUP.exists() and AUTOGROUP.read_text().strip() == "1"
 
 
+def load_averages() -> list[float]:
+    """The 1, 5 and 15 minute load averages, rounded to 0.01, as results files record them."""
+    return [round(x, 2) for x in os.getloadavg()]
+
+
 def load_average() -> str:
     """The 1, 5 and 15 minute load averages, as a benchmark prints them ("0.52, 0.61, 0.70")."""
     return ", ".join(f"{x:.2f}" for x in os.getloadavg())

@@ -39,6 +39,7 @@ from m2h_ros.core.world import acoustics  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
+from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.paths import file_label, file_sha256, repo_relative  # noqa: E402
@@ -151,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
                 "sound_splits": splits, "first": args.first, "count_per_split": args.count,
                 "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
                 "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
-                "load_average": [round(x, 2) for x in os.getloadavg()]}
+                "load_average": load_averages()}
         reference = args.reference if args.reference in controllers else None
         meta["separator_sha256"] = file_sha256(loaded.path)
         meta["acoustics"] = f"v{acoustics.VERSION} {env_config.acoustics.digest()}"

@@ -9,7 +9,6 @@ and writes the report.
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.jobs import EvalJob, run_eval_job, run_jobs
+from m2h_ros.machine import load_averages
 
 ESTIMATE_LABELS = {"refined": "f^R", "monaural": "no f^R"}
 SWEEP_KEYS = ("controller", "condition", "task", "sound_split")
@@ -109,7 +109,7 @@ def write_sweep(results: Sequence[EpisodeResult], rows: Sequence[dict], out: Pat
     versus = (paired_differences(results, reference=condition_reference, by=SWEEP_KEYS, vary="condition")
               if condition_reference else [])
     meta = {**meta, "command": command, "wall_seconds": round(time.perf_counter() - started, 1),
-            "load_average": [round(x, 2) for x in os.getloadavg()], "curve": list(rows),
+            "load_average": load_averages(), "curve": list(rows),
             **({"paired_conditions": versus} if versus else {})}
     paths = write_results(results, out, title=title, meta=meta, command=command, plot=False, by=SWEEP_KEYS,
                           reference=reference)

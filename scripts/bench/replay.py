@@ -139,8 +139,9 @@ def main() -> None:
     if args.child:
         print(json.dumps(child(args.child[0], Path(args.child[1]))))
         return
-    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} CPUs)")
-    from m2h_ros.machine import availability_line  # here: the children time their own imports
+    from m2h_ros.machine import availability_line, load_average  # here: the children time their own imports
+
+    print(f"load average before: {load_average()} ({os.cpu_count()} CPUs)")
     print(availability_line())
     with tempfile.TemporaryDirectory(prefix="bench_replay_") as tmp:
         bags = {}
@@ -192,7 +193,7 @@ def main() -> None:
             long = statistics.median(r["peak_rss_mb"] for r in runs["10x", "replay"])
             print(f"\npeak RSS of replay: {short:.0f} MB (short) vs {long:.0f} MB (10x longer): "
                   f"ratio {long / short:.2f} (flat: ~1)")
-    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"load average after: {load_average()}")
 
 
 if __name__ == "__main__":

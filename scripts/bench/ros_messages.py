@@ -19,6 +19,8 @@ import subprocess
 import sys
 import time
 
+from m2h_ros.machine import load_average
+
 CASES = (  # (label, executor, keep freed blocks, floats per message, extra subscriptions)
     ("rclpy executor, 1 KiB, 1 subscription", "rclpy", True, 256, 0),
     ("StepExecutor, 1 KiB, 1 subscription", "step", True, 256, 0),
@@ -106,12 +108,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
            "ROS_DOMAIN_ID": os.environ.get("ROS_DOMAIN_ID", str(random.randint(1, 100)))}
-    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"load average before: {load_average()}")
     for case in CASES:
         values = [measure(case, args.messages, env) for _ in range(args.repeats)]
         print(f"{case[0]:45s} subscriber CPU per message: " + " / ".join(f"{v:.3f}" for v in values) + " ms",
               flush=True)
-    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"load average after: {load_average()}")
     return 0
 
 

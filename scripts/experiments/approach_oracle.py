@@ -31,6 +31,7 @@ from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
 from m2h_ros.experiments.oracle import ApproachOracle  # noqa: E402
+from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.paths import REPO_DIR, file_label, repo_relative  # noqa: E402
@@ -74,7 +75,7 @@ def main(argv=None) -> int:
         meta = {"command": command, "checkpoint": repo_relative(loaded.path), "task": args.task,
                 "sound_splits": splits, "count_per_split": args.count, "threads": args.threads,
                 "wall_seconds": round(time.perf_counter() - started, 1),
-                "load_average": [round(x, 2) for x in os.getloadavg()]}
+                "load_average": load_averages()}
         paths = write_results(results, args.out, title=f"Approach oracle vs Stand In-Place, {args.task} test episodes",
                               meta=meta, command=command, setup=f"separator {file_label(loaded.path)}",
                               reference=REFERENCE)

@@ -30,6 +30,7 @@ from m2h_ros.core.results import (markdown_table, paired_differences, paired_tab
                                   write_results)
 from m2h_ros.errors import M2HError  # noqa: E402
 from m2h_ros.experiments import reward  # noqa: E402
+from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
 
 
@@ -62,7 +63,7 @@ def main() -> int:
     meta = {"command": command, "task": "near_target", "sound_splits": splits, "count_per_split": args.count,
             "controller_seed": args.seed, "workers": args.address or args.workers,
             "runs": reward.describe_runs(runs), "wall_seconds": round(time.perf_counter() - started, 1),
-            "load_average": [round(x, 2) for x in os.getloadavg()]}
+            "load_average": load_averages()}
     paths = write_results(results, args.out, title=f"pi^Q by reward: near-target test episodes, {' + '.join(splits)}",
                           meta=meta, command=command, reference=reward.REFERENCE,
                           setup=f"separator {runs[0].config['separator'] or 'shipped'}; runs "

@@ -24,6 +24,7 @@ from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import TASKS, EpisodeConfig  # noqa: E402
 from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
+from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.training.teacher_probe import collect_probe_data, fit_probe, ild_sign_accuracy  # noqa: E402
 from m2h_ros.paths import REPO_DIR  # noqa: E402
 from m2h_ros.training.ppo import TRAIN_FAR_STEPS, PPOConfig, PPOTrainer  # noqa: E402
@@ -61,7 +62,7 @@ def main(argv=None) -> int:
     report = {"command": command, "task": args.task, "states": len(data.ild), "fits": fits,
               "ild_sign_accuracy": accuracy, "turning_states": turning,
               "wall_seconds": round(time.perf_counter() - started, 1),
-              "load_average": [round(x, 2) for x in os.getloadavg()]}
+              "load_average": load_averages()}
     lines = [f"# Approach teacher probe, {args.task} training episodes", "", f"Command: `{command}`", "",
              f"{len(data.ild)} states of an untrained policy's rollouts (a fifth held out). Cross-entropy to the "
              "teacher's distribution on the held-out states (nats; lower is better):", "",
