@@ -228,11 +228,19 @@ class Move2Hear(LearnedController):
     def _load(self, kind: str) -> PolicyDriver:
         return PolicyDriver(load_learned(kind, self.folder / f"policy_{kind}.pt"), self.n_slots)
 
+    def _navigation_kind(self) -> str:
+        """The far-target policy before T^N: the folder's ``policy_approach.pt`` (trained without Stop, as the
+        original's composite policy) where it has one, else pi^N + Stop with its Stop masked; ``navigation_stop``
+        needs pi^N + Stop."""
+        if not self.navigation_stop and (self.folder / "policy_approach.pt").is_file():
+            return "approach"
+        return "navigation"
+
     def reset(self, slot: int, start: EpisodeStart) -> None:
         self.far[slot] = start.task == "far_target"
         if self.far[slot] and self.navigation is None:
             # Near-target runs need pi^Q only; pi^N (and its file) only once a far-target episode comes.
-            self.navigation = self._load("navigation")
+            self.navigation = self._load(self._navigation_kind())
             self.drivers.append(self.navigation)
         super().reset(slot, start)
 

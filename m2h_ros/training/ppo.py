@@ -1,6 +1,6 @@
 """PPO and DD-PPO training of the learned controllers, in-process on ``BatchEnv``; one readable loop.
 
-    python scripts/train_policy.py --kind quality|navigation|novelty|av_navigator [--updates N] [--out DIR]
+    python scripts/train_policy.py --kind quality|navigation|approach|novelty|av_navigator [--updates N] [--out DIR]
     torchrun --nproc_per_node 2 scripts/train_policy.py ...       # DD-PPO: 2 workers, gradients all-reduced
 
 One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
@@ -19,7 +19,9 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
    +10 x SNR dB last; ``si_sdr``: SI-SDR_{t+1} - SI-SDR_t in dB of the waveform rebuilt with the
    ground-truth monaural phase, as the evaluation scores it, +10 x SI-SDR dB last. ``navigation``
    (pi^N + Stop, AV Navigator) the env's reward (+10 for Stop at the target, +-0.25 per metre of
-   geodesic distance, -0.01 per step); ``novelty`` 1 / sqrt(n) with n the visits (this one included)
+   geodesic distance, -0.01 per step); ``approach`` (the original's far-target policy of the composite:
+   no Stop, 80-step episodes) the env's reward with the original's settings for it, +1 per metre of
+   geodesic distance gained and nothing else (``KindSpec.env_reward``); ``novelty`` 1 / sqrt(n) with n the visits (this one included)
    of the node the step arrives at in this episode.
 3. GAE(gamma, lambda) advantages, normalised (over all workers with DD-PPO); an episode end is
    terminal (no bootstrap), as in the original.
@@ -112,11 +114,26 @@ class KindSpec:
     task: str  # default training task
     entropy_coef: float  # the seed's: 0.01 for pi^Q, 0.2 otherwise
     train_refiner: bool
+    # EnvConfig reward settings the kind trains with (success_reward, distance_reward, step_penalty);
+    # None: EnvConfig's (the navigation reward of pi^N + Stop)
+    env_reward: tuple[float, float, float] | None = None
+
+    def env(self, **settings) -> EnvConfig:
+        """The EnvConfig this kind trains in, ``settings`` (camera, ...) applied."""
+        if self.env_reward is not None:
+            settings.update(zip(ENV_REWARD_FIELDS, self.env_reward, strict=True))
+        return EnvConfig(**settings)
+
+
+ENV_REWARD_FIELDS = ("success_reward", "distance_reward", "step_penalty")
 
 
 KINDS = {
     "quality": KindSpec("separation", False, "quality", "near_target", 0.01, True),
     "navigation": KindSpec("separation", True, "navigation", "far_target", 0.2, False),
+    # The original's far-target policy for the composite (configs/tasks/farTarget: three actions, 80 steps;
+    # its reward is the geodesic distance gained, DISTANCE_REWARD_SCALE 1.0, no slack or success term).
+    "approach": KindSpec("separation", False, "navigation", "far_target", 0.2, False, env_reward=(0.0, 1.0, 0.0)),
     "novelty": KindSpec("separation", False, "novelty", "near_target", 0.2, False),
     "av_navigator": KindSpec("mixture", True, "navigation", "far_target", 0.2, False),
 }
@@ -202,6 +219,12 @@ class PPOConfig:
         if self.entropy_coef is not None and not (isinstance(self.entropy_coef, float) and self.entropy_coef >= 0):
             raise ConfigError(f"PPOConfig.entropy_coef={self.entropy_coef!r} must be None or a float >= 0")
         check_device(self.device, field="PPOConfig.device")
+        if self.spec.env_reward is not None:
+            have = tuple(getattr(self.env, name) for name in ENV_REWARD_FIELDS)
+            if have != self.spec.env_reward:
+                raise ConfigError(f"PPOConfig.kind={self.kind!r} trains with EnvConfig "
+                                  f"{dict(zip(ENV_REWARD_FIELDS, self.spec.env_reward, strict=True))}, got "
+                                  f"{dict(zip(ENV_REWARD_FIELDS, have, strict=True))} (use KINDS[kind].env())")
 
     @property
     def spec(self) -> KindSpec:
@@ -871,7 +894,7 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
     episodes = EpisodeConfig(task=task, scene_split="train", sound_split="heard", count=args.episodes, seed=args.seed,
                              max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
     return PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
-                     env=EnvConfig(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
+                     env=KINDS[args.kind].env(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
                      final_weight=args.final_weight, lr=args.lr, teacher_coef=args.teacher_coef, init_policy=args.init_policy,

@@ -170,6 +170,22 @@ def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
         controller.reset(0, start("far_target"))
 
 
+def test_composite_walks_with_an_approach_policy_where_the_folder_has_one(tmp_path):
+    saved(tmp_path / "policy_navigation.pt", NAVIGATION, "navigation", favour=0)  # always STOP
+    saved(tmp_path / "policy_approach.pt", SMALL, "approach", favour=2)  # network action 2 = TURN_RIGHT
+    saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
+    controller = make_controller("move2hear", 1, checkpoint=str(tmp_path))
+    controller.reset(0, start("far_target"))
+    assert [int(controller.act(observation(1, s))[0]) for s in (0, 79, 80)] == [TURN_RIGHT, TURN_RIGHT, TURN_LEFT]
+    assert controller.model_files() == [tmp_path / "policy_quality.pt", tmp_path / "policy_approach.pt"]
+    keeps_stop = make_controller("move2hear:stop", 1, checkpoint=str(tmp_path))  # needs pi^N + Stop
+    keeps_stop.reset(0, start("far_target"))
+    assert keeps_stop.act(observation(1)).tolist() == [STOP]
+    (tmp_path / "policy_navigation.pt").rename(tmp_path / "policy_approach.pt")  # a pi^N + Stop file misnamed
+    with pytest.raises(CheckpointError, match="holds a 'navigation' policy, expected 'approach'"):
+        make_controller("move2hear", 1, checkpoint=str(tmp_path)).reset(0, start("far_target"))
+
+
 def test_av_navigator_reads_the_mixture_and_the_target_class(tmp_path):
     config = PolicyConfig(inputs="mixture", stop=True, camera=False, hidden=16, channels=(4, 8, 4))
     saved(tmp_path / "av.pt", config, "av_navigator", favour=1)  # network action 1 = MOVE_FORWARD

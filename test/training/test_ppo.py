@@ -51,6 +51,15 @@ def test_the_command_line_sets_the_entropy_coefficient():
         config_from_args(parser.parse_args(["--kind", "quality", "--entropy-coef", "-1"]))
 
 
+def test_the_approach_kind_trains_on_distance_gained_alone_without_stop():
+    approach = config_from_args(build_parser().parse_args(["--kind", "approach", "--no-camera"]))
+    assert approach.episodes.task == "far_target" and approach.episodes.max_steps == 80
+    assert (approach.env.success_reward, approach.env.distance_reward, approach.env.step_penalty) == (0.0, 1.0, 0.0)
+    assert not approach.env.camera and not approach.policy_config().stop and approach.entropy == 0.2
+    with pytest.raises(ConfigError, match="kind='approach' trains with EnvConfig"):
+        PPOConfig(kind="approach")  # EnvConfig's navigation reward is not this kind's
+
+
 def test_the_command_line_sets_the_final_weight_and_learning_rate():
     parser = build_parser()
     default = config_from_args(parser.parse_args(["--kind", "quality"]))
@@ -332,6 +341,18 @@ def test_av_navigator_and_novelty_train_with_the_camera(fast_env, separator_path
         assert np.isfinite(result.history[-1]["value_loss"]) and not (tmp_path / kind / "separator.pt").exists()
         if kind == "novelty":  # every step is rewarded 1/sqrt(n) for some n >= 1, so returns are positive
             assert 0 < result.history[-1]["return_window"] <= STEPS
+
+
+def test_approach_trains_without_stop_on_the_distance_gained(fast_env, separator_path, folder_library, tmp_path):
+    env = dataclasses.replace(fast_env, success_reward=0.0, distance_reward=1.0, step_penalty=0.0)
+    config = tiny(fast_env, separator_path, kind="approach", env=env, updates=2)
+    result = train(config, folder_library, out_dir=tmp_path, progress=False)
+    loaded = load_policy(result.checkpoint, policy_kind="approach")
+    assert not loaded.config.stop and loaded.config.inputs == "separation"
+    # An episode's return is the geodesic distance it gained: at most its start distance, at least minus
+    # what STEPS moves of 1 m can lose.
+    returns = result.history[-1]["return_window"]
+    assert np.isfinite(returns) and -STEPS <= returns <= STEPS and returns != 0
 
 
 def test_speed_paths_give_the_plain_paths_losses(fast_env, separator_path, folder_library, tmp_path, monkeypatch):
