@@ -159,10 +159,12 @@ class SimNode(Node):
             if action is not None:
                 raise PipelineError(f"{episode_id} step {step}: {self.unscored()} for {self.config.step_timeout_s} s"
                                     f"{self.absent_nodes()}")
-            culprit = ("controller_node" if self.separated == (episode_id, step) else "separator_node")
+            # What the sim saw, not a verdict: a stalled transport looks the same as a silent node.
+            culprit = ("controller_node did not answer (the separator's output for this step reached the sim)"
+                       if self.separated == (episode_id, step) else
+                       "separator_node did not answer, or its output for this step was not delivered")
             raise PipelineError(f"no motion command for {episode_id} step {step} within "
-                                f"{self.config.step_timeout_s} s: {culprit} did not answer"
-                                f"{self.absent_nodes()}")
+                                f"{self.config.step_timeout_s} s: {culprit}{self.absent_nodes()}")
 
     def unscored(self) -> str:
         return f"evaluator_node left {self.steps - self.scored_steps} observations unscored"
