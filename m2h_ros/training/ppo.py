@@ -141,6 +141,7 @@ WINDOWED = ("return", "final_nmse", "final_quality", "success")  # per-episode v
 POLICY_LOSSES = ("value_loss", "action_loss", "entropy", "teacher_ce", "location_loss", "location_error_m")
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
+TRAINING_SCENE_SPLITS = ("train", "train24")
 SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
 
 
@@ -851,6 +852,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--n-steps", type=int, default=PPOConfig.n_steps)
     parser.add_argument("--episodes", type=int, default=2000, help="training episodes (train scenes, heard sounds)")
     parser.add_argument("--task", choices=("near_target", "far_target"), help="default: the kind's")
+    parser.add_argument("--scene-split", default="train", choices=TRAINING_SCENE_SPLITS,
+                        help="training scenes: train (12, what the shipped policies trained on) or train24 (24)")
     parser.add_argument("--separator", default="", help="separator checkpoint (default: the shipped one)")
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,
@@ -891,7 +894,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> PPOConfig:
     """The run :func:`main` makes of ``build_parser()``'s arguments."""
     task = args.task or KINDS[args.kind].task
-    episodes = EpisodeConfig(task=task, scene_split="train", sound_split="heard", count=args.episodes, seed=args.seed,
+    episodes = EpisodeConfig(task=task, scene_split=args.scene_split, sound_split="heard", count=args.episodes, seed=args.seed,
                              max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
     return PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
                      env=KINDS[args.kind].env(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,

@@ -56,6 +56,8 @@ def test_the_approach_kind_trains_on_distance_gained_alone_without_stop():
     assert approach.episodes.task == "far_target" and approach.episodes.max_steps == 80
     assert (approach.env.success_reward, approach.env.distance_reward, approach.env.step_penalty) == (0.0, 1.0, 0.0)
     assert not approach.env.camera and not approach.policy_config().stop and approach.entropy == 0.2
+    assert approach.episodes.scene_split == "train" and config_from_args(build_parser().parse_args(
+        ["--kind", "approach", "--scene-split", "train24"])).episodes.scene_split == "train24"
     with pytest.raises(ConfigError, match="kind='approach' trains with EnvConfig"):
         PPOConfig(kind="approach")  # EnvConfig's navigation reward is not this kind's
 

@@ -66,6 +66,10 @@ OBSTACLE_COLOR = (0.42, 0.30, 0.20)
 
 SCENE_SPLITS: dict[str, tuple[int, ...]] = {
     "train": tuple(range(0, 12)),
+    # The train scenes and 12 more (session 22: the learned walkers approach the target much less in unseen
+    # scenes than in these, docs/policies.md); its first 12 are train's, their banks shared (same fingerprints).
+    # Seed 19 is left out: one of its rooms rings longer (band RT60 1.05 s) than the 1.0 s RIRs hold.
+    "train24": (*range(0, 19), *range(20, 25)),
     "val": tuple(range(1000, 1003)),
     "test": tuple(range(2000, 2003)),
 }
@@ -220,7 +224,7 @@ def generate_scene(seed: int, *, preset: str = "default", scene_id: str | None =
 
 
 def load_split(split: str, *, preset: str = "default") -> list[Scene]:
-    """Scenes of a fixed split ("train", "val", "test"), ids ``<split>_<index:03d>``."""
+    """Scenes of a fixed split ("train", "train24", "val", "test"), ids ``<split>_<index:03d>``."""
     if split not in SCENE_SPLITS:
         raise ConfigError(f"split={split!r} is unknown; choose one of {sorted(SCENE_SPLITS)}")
     return [generate_scene(seed, preset=preset, scene_id=f"{split}_{i:03d}")
