@@ -19,10 +19,10 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
    +10 x SNR dB last; ``si_sdr``: SI-SDR_{t+1} - SI-SDR_t in dB of the waveform rebuilt with the
    ground-truth monaural phase, as the evaluation scores it, +10 x SI-SDR dB last. ``navigation``
    (pi^N + Stop, AV Navigator) the env's reward (+10 for Stop at the target, +-0.25 per metre of
-   geodesic distance, -0.01 per step); ``approach`` (the original's far-target policy of the composite:
-   no Stop, 80-step episodes) the env's reward with the original's settings for it, +1 per metre of
-   geodesic distance gained and nothing else (``KindSpec.env_reward``); ``novelty`` 1 / sqrt(n) with n the visits (this one included)
-   of the node the step arrives at in this episode.
+   geodesic distance, -0.01 per step); ``approach`` (the original's far-target policy of the
+   composite: no Stop, 80-step episodes) the env's reward with the original's settings for it, +1 per
+   metre of geodesic distance gained and nothing else (``KindSpec.env_reward``); ``novelty`` 1 / sqrt(n)
+   with n the visits (this one included) of the node the step arrives at in this episode.
 3. GAE(gamma, lambda) advantages, normalised (over all workers with DD-PPO); an episode end is
    terminal (no bootstrap), as in the original.
 4. ``ppo_epochs`` passes of ``n_minibatches`` minibatches (whole slot sequences, the GRU re-run from

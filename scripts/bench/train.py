@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 from m2h_ros.core.sounds.library import SoundLibrary
-from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.machine import availability_line
 from m2h_ros.paths import REPO_DIR
@@ -65,7 +64,7 @@ def main() -> None:
                          checkpoint_every=args.updates + 1)
     else:
         config = PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
-                           env=EnvConfig(camera=not args.no_camera), n_envs=args.n_envs, n_steps=args.n_steps,
+                           env=KINDS[args.kind].env(camera=not args.no_camera), n_envs=args.n_envs, n_steps=args.n_steps,
                            updates=args.updates, threads=args.threads, refiner_epochs=args.refiner_epochs,
                            train_refiner=False if args.frozen_refiner else None,
                            quality_reward=args.quality_reward, location_coef=args.location_coef,
