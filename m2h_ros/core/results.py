@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from m2h_ros.core.plotting import agg_pyplot, save_line_plot
 from m2h_ros.core.world.episodes import STOP
@@ -116,9 +117,6 @@ def mean_ci(values: Sequence[float], *, level: float = 0.95) -> tuple[float, flo
         return math.nan, math.nan
     if x.size == 1:
         return float(x[0]), 0.0
-    from scipy import stats  # here: importing scipy.stats costs ~0.5 s, which every node and CLI importing
-    # this module would pay before its first table
-
     sem = x.std(ddof=1) / math.sqrt(x.size)
     return float(x.mean()), float(stats.t.ppf(0.5 + level / 2, x.size - 1) * sem)
 

@@ -24,6 +24,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import scipy.fft
+import scipy.signal
 
 from m2h_ros.config import reject_unknown_fields
 from m2h_ros.core.audio.metrics import all_finite
@@ -93,8 +94,6 @@ class StftConfig:
 
     def window(self) -> np.ndarray:
         """Periodic Hann window (= torch.hann_window(win_length)), zero-padded to n_fft, float64."""
-        import scipy.signal  # here: it costs ~0.4 s to import, and windows are cached (_cached_window)
-
         window = scipy.signal.get_window("hann", self.win_length, fftbins=True)
         left = (self.n_fft - self.win_length) // 2
         return np.pad(window, (left, self.n_fft - self.win_length - left))
