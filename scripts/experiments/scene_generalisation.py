@@ -24,7 +24,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from m2h_ros.agents.registry import CONTROLLER_NAMES, make_controller  # noqa: E402
+from m2h_ros.agents.registry import controller_class, make_controller  # noqa: E402
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
@@ -75,8 +75,7 @@ def main(argv=None) -> int:
     try:
         specs = [item.partition("@") for item in args.controllers.split(",")]
         for name, _, _ in specs:
-            if name.split(":")[0] not in CONTROLLER_NAMES:
-                raise ConfigError(f"unknown controller {name!r}")
+            controller_class(name)  # an unknown spec fails here, before minutes of episodes
         if args.seed == TRAINING_SEED or min(args.count, args.slots, args.threads, args.step) < 1:
             raise ConfigError(f"--seed must differ from the training's {TRAINING_SEED}; --count, --slots, --threads, "
                               f"--step >= 1")
