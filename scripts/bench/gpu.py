@@ -1,10 +1,15 @@
 #!/usr/bin/env python3
-"""Network cost on CUDA against the CPU of the same machine, in one run: separator inference, a
-separator training step, and a PPO minibatch update of the policy, for the compact and paper presets.
+"""Network cost on CUDA against the CPU of the same machine, in one run: separator inference, the
+separator node's whole step, a separator training step, and a PPO minibatch update of the policy, for
+the compact and paper presets.
 
 * ``separator step``: the fused f^B + f^M + f^R (``fuse_for_inference``) under ``torch.inference_mode``,
   at batch 1, 16 and 256 (the networks only; STFT and inverse STFT run in numpy on the CPU either way).
   On CUDA also under bf16 autocast.
+* ``node step``: what ``separator_node`` does per message on either ``device``: ``SeparatorRunner``
+  over 1 slot (the node) and 32 (in-process evaluation) with the shipped checkpoint, its three outputs
+  read back as arrays and the refined estimate rebuilt into a waveform (the numpy STFTs run on the CPU
+  either way; one torch thread, as the node runs).
 * ``separator train``: forward, L1 on all three outputs, backward and one Adam step at batch 32 (the
   training modules, BatchNorm in train mode).
 * ``policy update``: one PPO minibatch as ``training/ppo.py`` runs it: ``PolicyNet.evaluate`` over a
@@ -12,7 +17,9 @@ separator training step, and a PPO minibatch update of the policy, for the compa
   with the camera, backward and an Adam step.
 
 Each candidate's CPU and CUDA figures are timed in alternating rounds (the CPU with all its cores as
-torch threads unless ``--cpu-threads``), after warm-up; CUDA timings synchronise the device. Printed: the
+torch threads unless ``--cpu-threads``), after warm-up; CUDA timings synchronise the device. CUDA runs
+with the project's settings (``models.device.resolve_device``: deterministic kernels, float32 without
+TF32; session 21's figures had cuDNN's autotuning and TF32 convolutions). Printed: the
 median and the minimum ms of ``--repeats`` rounds and the CPU / CUDA ratio of the medians, with the load
 average before and after. Without CUDA it prints the CPU figures alone and says so.
 
@@ -31,13 +38,18 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see scripts/bench/separat
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
+from m2h_ros.models.device import resolve_device  # noqa: E402
 from m2h_ros.models.inference import fuse_for_inference  # noqa: E402
+from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
+from m2h_ros.models.threads import torch_threads  # noqa: E402
 from m2h_ros.models.policy import PolicyConfig, PolicyNet, policy_input_buffers  # noqa: E402
 from m2h_ros.models.separator import PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.core.audio.stft import DEFAULT_STFT  # noqa: E402
 from m2h_ros.machine import availability_line, load_average  # noqa: E402
 
 INFERENCE_BATCHES = (1, 16, 256)
+NODE_SLOTS = (1, 32)
 TRAIN_BATCH = 32
 ROLLOUT_STEPS, ROLLOUT_SLOTS = 20, 16
 
@@ -90,6 +102,25 @@ def inference_candidates(config: SeparatorConfig, batch: int, devices: list[torc
                 with torch.inference_mode(), torch.autocast("cuda", dtype=torch.bfloat16):
                     fused(*inputs)
             fns["cuda bf16"] = (run_bf16, device)
+    return fns
+
+
+def node_step_candidates(slots: int, devices: list[torch.device]) -> dict:
+    fns = {}
+    for device in devices:
+        loaded = load_separator(DEFAULT_SEPARATOR_CHECKPOINT, map_location=device)
+        runner = SeparatorRunner(loaded, slots)
+        config = loaded.stft
+        mixture = (np.random.default_rng(slots).standard_normal((slots, 2, config.clip_samples)) * 0.1).astype(np.float32)
+        classes = np.zeros(slots, np.int64)
+        runner.step(mixture, classes, np.ones(slots, bool))  # every slot's first step: memory made
+        held = np.zeros(slots, bool)
+
+        def run(runner=runner, mixture=mixture, classes=classes, held=held, config=config) -> None:
+            out = runner.step(mixture, classes, held)
+            out.binaural, out.monaural  # noqa: B018 (read back as the node publishes them)
+            out.waveform(mixture, config=config)
+        fns[device.type] = (run, device)
     return fns
 
 
@@ -158,8 +189,8 @@ def main() -> None:
     torch.set_num_threads(args.cpu_threads)
     devices = [torch.device("cpu")]
     if torch.cuda.is_available():
-        devices.append(torch.device("cuda"))
-        torch.backends.cudnn.benchmark = True  # fixed shapes: let cuDNN pick its kernels once
+        # As the trainers and the separator node run on CUDA: deterministic kernels, IEEE float32 (no TF32).
+        devices.append(resolve_device("cuda", field="--device"))
         gpu = torch.cuda.get_device_name()
     else:
         gpu = "none (CPU figures only)"
@@ -176,6 +207,11 @@ def main() -> None:
             # A paper-width batch of 256 takes seconds per call on 2 cores: fewer rounds there.
             repeats = args.repeats if batch < 256 else max(2, args.repeats // 5)
             print_rows(f"separator step, batch {batch}", timed(inference_candidates(separator, batch, devices), repeats))
+        if preset == "compact":  # the shipped checkpoint's preset
+            with torch_threads(1):  # the separator node's thread count
+                for slots in NODE_SLOTS:
+                    print_rows(f"node step (shipped), {slots} slot(s)",
+                               timed(node_step_candidates(slots, devices), args.repeats))
         print_rows(f"separator train step, batch {TRAIN_BATCH}",
                    timed(separator_train_candidates(separator, devices), max(2, args.repeats // 2)))
         print_rows(f"policy update, {ROLLOUT_STEPS} x {ROLLOUT_SLOTS} steps",
