@@ -1,5 +1,14 @@
 """Every error the project raises on purpose derives from M2HError, so callers can catch one type."""
 
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+from typing import ParamSpec
+
+P = ParamSpec("P")
+
 
 class M2HError(Exception):
     """Base class of all m2h_ros errors."""
@@ -31,3 +40,20 @@ class EpisodeError(M2HError):
 
 class PipelineError(M2HError):
     """The node graph broke its step contract: a node stopped answering, or sent unusable data."""
+
+
+def reports_errors(prog: str) -> Callable[[Callable[P, int | None]], Callable[P, int]]:
+    """Decorates a command's ``main``: an M2HError ends it as argparse ends a bad option, with one line
+    ``PROG: error: MESSAGE`` on stderr and exit code 2, not a traceback (the error names the problem;
+    anything else is a bug and keeps its traceback). A ``main`` that returns None exits 0."""
+
+    def decorate(main: Callable[P, int | None]) -> Callable[P, int]:
+        @functools.wraps(main)
+        def run(*args: P.args, **kwargs: P.kwargs) -> int:
+            try:
+                return main(*args, **kwargs) or 0
+            except M2HError as exc:
+                print(f"{prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+                return 2
+        return run
+    return decorate

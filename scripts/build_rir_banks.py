@@ -7,13 +7,16 @@ from __future__ import annotations
 
 import argparse
 import time
+import sys
 
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.scene import PRESETS, SCENE_SPLITS, load_split
+from m2h_ros.errors import reports_errors
 
 
-def main(argv: list[str] | None = None) -> None:
+@reports_errors("build_rir_banks")
+def main(argv: list[str] | None = None) -> int | None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", choices=sorted(SCENE_SPLITS), required=True)
     parser.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
@@ -32,4 +35,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -25,9 +25,10 @@ REPO = Path(__file__).resolve().parents[1]
 from m2h_ros.core.sounds import SPLITS, SoundLibrary, SoundLibraryConfig
 from m2h_ros.core.sounds.partial import write_index
 from m2h_ros.core.sounds.sources import sources_dir
-from m2h_ros.errors import CacheError
+from m2h_ros.errors import CacheError, reports_errors
 
 
+@reports_errors("build_sound_library")
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--small", action="store_true", help="few clips per class (tests)")

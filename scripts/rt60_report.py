@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import argparse
 import time
+import sys
 
 import numpy as np
 
 from m2h_ros.core.plotting import agg_pyplot
 from m2h_ros.core.world.acoustics import BAND_CENTRES, AcousticsConfig, measured_room_rt60, room_rt60
 from m2h_ros.core.world.scene import SCENE_SPLITS, isolated_room, load_split
-from m2h_ros.errors import ConfigError
+from m2h_ros.errors import ConfigError, reports_errors
 
 SHOWN = BAND_CENTRES <= 4000  # the 8 kHz octave is cut by the 16 kHz sampling rate
 
@@ -48,7 +49,8 @@ def _ratios(name: str, measured: np.ndarray, eyring: np.ndarray, rooms: list[str
         print(f"  outside 20%: {rooms[k]}: {bands}")
 
 
-def main(argv: list[str] | None = None) -> None:
+@reports_errors("rt60_report")
+def main(argv: list[str] | None = None) -> int | None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--splits", nargs="+", choices=sorted(SCENE_SPLITS), default=list(SCENE_SPLITS))
     parser.add_argument("--measure", nargs="+", choices=sorted(SCENE_SPLITS), default=[],
@@ -107,4 +109,4 @@ def _plot(series: dict[str, np.ndarray], path: str) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,11 @@ import numpy as np
 from m2h_ros.core.world.camera import CameraConfig, CameraViews
 from m2h_ros.core.world.scene import PRESETS, SCENE_SPLITS, load_split
 from m2h_ros.core.world.viewer import camera_strip, plot_episode, save_camera_views
+from m2h_ros.errors import reports_errors
 
 
-def main(argv: list[str] | None = None) -> None:
+@reports_errors("view_scene")
+def main(argv: list[str] | None = None) -> int | None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", choices=sorted(SCENE_SPLITS), default="test")
     parser.add_argument("--index", type=int, default=0)
@@ -52,4 +55,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

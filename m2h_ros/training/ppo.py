@@ -89,7 +89,7 @@ from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
-from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
+from m2h_ros.errors import CheckpointError, ConfigError, reports_errors  # noqa: E402
 from m2h_ros.models.device import DEVICES, check_device, resolve_device
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.policy import (PRESET_NAMES, PolicyConfig, PolicyInputs, PolicyNet, policy_input_buffers,  # noqa: E402
@@ -907,6 +907,7 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      threads=args.threads, checkpoint_every=args.checkpoint_every, device=args.device)
 
 
+@reports_errors("train_policy")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = config_from_args(args)

@@ -61,7 +61,7 @@ from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
-from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
+from m2h_ros.errors import CheckpointError, ConfigError, reports_errors  # noqa: E402
 from m2h_ros.models.device import DEVICES, check_device, resolve_device
 from m2h_ros.models.checkpoint import PRETRAINED_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import BACKBONES, PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
@@ -536,6 +536,7 @@ def config_from_args(args: argparse.Namespace) -> PretrainConfig:
                       val_data=StreamConfig.validation(source_nodes=args.source_nodes))
 
 
+@reports_errors("train_separator")
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = config_from_args(args)

@@ -39,7 +39,7 @@ from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, draw_episode  # noqa: E402
 from m2h_ros.core.world.scene import load_split  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
-from m2h_ros.errors import ConfigError  # noqa: E402
+from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.models.locator import (DEFAULT_LOCATOR_CHECKPOINT, LocatorConfig, LocatorOutput,  # noqa: E402
                                     SoundLocator, locator_input, relative_offset, save_locator)
 from m2h_ros.paths import repo_relative  # noqa: E402
@@ -244,6 +244,7 @@ def train_locator(config: LocatorTrainConfig, library: SoundLibrary, *, out: Pat
     return metadata
 
 
+@reports_errors("train_locator")
 def main(argv: Sequence[str] | None = None) -> int:
     defaults = LocatorTrainConfig()
     parser = argparse.ArgumentParser(description="Train the Gan et al. baseline's sound locator (supervised).")
