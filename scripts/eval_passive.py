@@ -22,7 +22,7 @@ from m2h_ros.core.audio.scoring import DEPLOYABLE_REFERENCE
 from m2h_ros.core.results import METRIC_LABELS, METRICS
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
-from m2h_ros.errors import M2HError
+from m2h_ros.errors import reports_errors
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
 from m2h_ros.paths import repo_relative
 from m2h_ros.training.passive_eval import ESTIMATES, evaluate_passive, gap_closed, summarize
@@ -46,6 +46,7 @@ def format_table(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+@reports_errors("eval_passive")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT)
@@ -54,18 +55,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default: next to the checkpoint)")
     args = parser.parse_args(argv)
-    try:
-        loaded = load_separator(args.checkpoint)
-        library = SoundLibrary.load()
-        results, started = {}, time.perf_counter()
-        for split in args.sound_split or SOUND_SPLITS:
-            episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
-            summary = summarize(evaluate_passive(loaded, episodes[: args.count], library))
-            results[split] = {"summary": summary, "gap_closed": {e: {m: gap_closed(summary, m, e) for m in METRICS}
-                                                                  for e in GAP_ESTIMATES}}
-    except M2HError as exc:
-        print(f"eval_passive: error: {exc}", file=sys.stderr)
-        return 2
+    loaded = load_separator(args.checkpoint)
+    library = SoundLibrary.load()
+    results, started = {}, time.perf_counter()
+    for split in args.sound_split or SOUND_SPLITS:
+        episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
+        summary = summarize(evaluate_passive(loaded, episodes[: args.count], library))
+        results[split] = {"summary": summary, "gap_closed": {e: {m: gap_closed(summary, m, e) for m in METRICS}
+                                                              for e in GAP_ESTIMATES}}
     print(format_table(results))
     out = args.out or args.checkpoint.with_name(f"{args.checkpoint.stem}_passive.json")
     given = sys.argv[1:] if argv is None else argv

@@ -38,7 +38,7 @@ from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world import acoustics  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
-from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
+from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
@@ -121,6 +121,7 @@ def describe_models(model_files: dict[str, list[Path]]) -> dict[str, list[str]]:
     return {name: [file_label(path) for path in paths] for name, paths in model_files.items() if paths}
 
 
+@reports_errors("evaluate")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.list:
@@ -132,39 +133,35 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     command = shlex.join(["python", "scripts/evaluate.py", *(sys.argv[1:] if argv is None else argv)])
     started = time.perf_counter()
-    try:
-        controllers = names(args.controllers, allowed=CONTROLLER_NAMES, what="controller")
-        splits = names(args.sound_split, allowed=SOUND_SPLITS, what="sound split")
-        for option in ("slots", "threads"):
-            if getattr(args, option) < 1:
-                raise ConfigError(f"--{option.replace('_', '-')} must be >= 1")
-        loaded = load_separator(args.checkpoint)
-        torch.set_num_threads(args.threads)
-        library = SoundLibrary.load()
-        episodes = [e for split in splits for e in select_episodes(args.task, split, first=args.first, count=args.count,
-                                                                     library=library, scene_split=args.scene_split)]
-        env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
-                               mic_noise=args.mic_noise)
-        results, model_files = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
-        meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
-                "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",
-                "task": args.task, "scene_split": args.scene_split,
-                "sound_splits": splits, "first": args.first, "count_per_split": args.count,
-                "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
-                "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
-                "load_average": load_averages()}
-        reference = args.reference if args.reference in controllers else None
-        meta["separator_sha256"] = file_sha256(loaded.path)
-        meta["acoustics"] = f"v{acoustics.VERSION} {env_config.acoustics.digest()}"
-        meta["models"] = describe_models(model_files)
-        setup = (f"separator `{Path(loaded.path).name}` (sha256 {meta['separator_sha256']}), "
-                 f"acoustics {meta['acoustics']}"
-                 + "".join(f"; {name}: {', '.join(files)}" for name, files in meta["models"].items()))
-        paths = write_results(results, args.out, title=f"{args.task} {args.scene_split} episodes, {' + '.join(splits)} sounds",
-                              meta=meta, command=command, setup=setup, reference=reference)
-    except M2HError as exc:
-        print(f"evaluate: error: {exc}", file=sys.stderr)
-        return 2
+    controllers = names(args.controllers, allowed=CONTROLLER_NAMES, what="controller")
+    splits = names(args.sound_split, allowed=SOUND_SPLITS, what="sound split")
+    for option in ("slots", "threads"):
+        if getattr(args, option) < 1:
+            raise ConfigError(f"--{option.replace('_', '-')} must be >= 1")
+    loaded = load_separator(args.checkpoint)
+    torch.set_num_threads(args.threads)
+    library = SoundLibrary.load()
+    episodes = [e for split in splits for e in select_episodes(args.task, split, first=args.first, count=args.count,
+                                                                 library=library, scene_split=args.scene_split)]
+    env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
+                           mic_noise=args.mic_noise)
+    results, model_files = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
+    meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
+            "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",
+            "task": args.task, "scene_split": args.scene_split,
+            "sound_splits": splits, "first": args.first, "count_per_split": args.count,
+            "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
+            "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
+            "load_average": load_averages()}
+    reference = args.reference if args.reference in controllers else None
+    meta["separator_sha256"] = file_sha256(loaded.path)
+    meta["acoustics"] = f"v{acoustics.VERSION} {env_config.acoustics.digest()}"
+    meta["models"] = describe_models(model_files)
+    setup = (f"separator `{Path(loaded.path).name}` (sha256 {meta['separator_sha256']}), "
+             f"acoustics {meta['acoustics']}"
+             + "".join(f"; {name}: {', '.join(files)}" for name, files in meta["models"].items()))
+    paths = write_results(results, args.out, title=f"{args.task} {args.scene_split} episodes, {' + '.join(splits)} sounds",
+                          meta=meta, command=command, setup=setup, reference=reference)
     print(markdown_table(summarize(results)))
     if reference:
         print(f"final-step SI-SDR (GT phase) minus {reference}'s, same episodes:")

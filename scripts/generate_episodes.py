@@ -12,9 +12,10 @@ import time
 
 from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
 from m2h_ros.core.world.episodes import SCENARIOS, SOUND_SPLITS, TASKS, EpisodeConfig, episode_path, episodes_for
-from m2h_ros.errors import M2HError
+from m2h_ros.errors import reports_errors
 
 
+@reports_errors("generate_episodes")
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scene-split", default="test", choices=("train", "val", "test"))
@@ -25,18 +26,14 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--small-library", action="store_true", help="use the --small sound library")
     args = parser.parse_args(argv)
-    try:
-        library = SoundLibrary.load(SoundLibraryConfig.small() if args.small_library else None)
-        for task, sound_split in itertools.product(args.task or TASKS, args.sound_split or SOUND_SPLITS):
-            config = EpisodeConfig(task=task, scene_split=args.scene_split, sound_split=sound_split,
-                                   scenario=args.scenario, count=args.count, seed=args.seed)
-            started = time.perf_counter()
-            episodes = episodes_for(config, library, progress=True)
-            print(f"{len(episodes)} episodes {args.scene_split}/{task}/{sound_split}/{args.scenario} "
-                  f"in {time.perf_counter() - started:.1f} s -> {episode_path(config, library)}")
-    except M2HError as exc:
-        print(f"generate_episodes: {exc}", file=sys.stderr)
-        return 2
+    library = SoundLibrary.load(SoundLibraryConfig.small() if args.small_library else None)
+    for task, sound_split in itertools.product(args.task or TASKS, args.sound_split or SOUND_SPLITS):
+        config = EpisodeConfig(task=task, scene_split=args.scene_split, sound_split=sound_split,
+                               scenario=args.scenario, count=args.count, seed=args.seed)
+        started = time.perf_counter()
+        episodes = episodes_for(config, library, progress=True)
+        print(f"{len(episodes)} episodes {args.scene_split}/{task}/{sound_split}/{args.scenario} "
+              f"in {time.perf_counter() - started:.1f} s -> {episode_path(config, library)}")
     return 0
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from m2h_ros.core.results import (METRICS, EpisodeResult, paired_differences, paired_section, plot_paired,
                                   read_results)
-from m2h_ros.errors import ConfigError, M2HError
+from m2h_ros.errors import ConfigError, reports_errors
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,17 +96,14 @@ def differences(results: list[EpisodeResult], references: list[str], metric: str
     return by_reference
 
 
+@reports_errors("paired")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command = shlex.join(["python", "scripts/paired.py", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        tags = [t for t in args.tags.split(",") if t]
-        rows = differences(load(args.results, tags), [r for r in args.reference.split(",") if r], args.metric)
-        if args.png:
-            plot_paired([row for per_reference in rows.values() for row in per_reference], args.png)
-    except M2HError as exc:
-        print(f"paired: error: {exc}", file=sys.stderr)
-        return 2
+    tags = [t for t in args.tags.split(",") if t]
+    rows = differences(load(args.results, tags), [r for r in args.reference.split(",") if r], args.metric)
+    if args.png:
+        plot_paired([row for per_reference in rows.values() for row in per_reference], args.png)
     text = "\n".join(paired_section(r, reference=ref, metric=args.metric) for ref, r in rows.items())
     print(text, end="")
     if args.png:

@@ -21,7 +21,7 @@ from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.env import EnvConfig, MoveHearEnv
 from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, EpisodeConfig, episodes_for
 from m2h_ros.core.world.viewer import camera_strip, plot_episode
-from m2h_ros.errors import M2HError
+from m2h_ros.errors import reports_errors
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
 from m2h_ros.models.separator import separate_clip
 
@@ -34,6 +34,7 @@ def toward_target(env: MoveHearEnv, obs) -> int:
     return MOVE_FORWARD if closer else TURN_LEFT
 
 
+@reports_errors("view_episode")
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="near_target", choices=("near_target", "far_target"))
@@ -44,14 +45,10 @@ def main(argv=None) -> int:
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    try:
-        library = SoundLibrary.load()
-        episodes = episodes_for(EpisodeConfig(task=args.task, sound_split=args.sound_split), library)
-        env = MoveHearEnv(episodes, library, config=EnvConfig(camera=True))
-        separator = load_separator(args.checkpoint) if args.checkpoint.exists() else None
-    except M2HError as exc:
-        print(f"view_episode: {exc}", file=sys.stderr)
-        return 2
+    library = SoundLibrary.load()
+    episodes = episodes_for(EpisodeConfig(task=args.task, sound_split=args.sound_split), library)
+    env = MoveHearEnv(episodes, library, config=EnvConfig(camera=True))
+    separator = load_separator(args.checkpoint) if args.checkpoint.exists() else None
     rng = np.random.default_rng(args.seed)
     obs, info = env.reset(options={"episode": args.index})
     path, views, memory = [], [], None

@@ -29,7 +29,7 @@ from m2h_ros.core.results import markdown_table, paired_differences, paired_tabl
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for  # noqa: E402
-from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
+from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.experiments.oracle import ApproachOracle  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
@@ -39,6 +39,7 @@ from m2h_ros.paths import REPO_DIR, file_label, repo_relative  # noqa: E402
 REFERENCE = "stand_in_place"
 
 
+@reports_errors("approach_oracle")
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", choices=TASKS, default="near_target")
@@ -54,34 +55,30 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     command = shlex.join(["python", "scripts/experiments/approach_oracle.py", *(sys.argv[1:] if argv is None else argv)])
     started = time.perf_counter()
-    try:
-        splits = args.sound_split.split(",")
-        if any(s not in SOUND_SPLITS for s in splits) or args.count < 1 or args.slots < 1 or args.threads < 1:
-            raise ConfigError(f"--sound-split must name {SOUND_SPLITS}; --count, --slots, --threads >= 1")
-        holds = args.hold.split(",")
-        if any(h not in ApproachOracle.HOLDS for h in holds):
-            raise ConfigError(f"--hold must name {sorted(ApproachOracle.HOLDS)}")
-        torch.set_num_threads(args.threads)
-        library, loaded = SoundLibrary.load(), load_separator(args.checkpoint)
-        episodes = [e for split in splits for e in episodes_for(
-            EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)[:args.count]]
-        slots = min(args.slots, len(episodes))
-        results = []
-        oracles = [ApproachOracle(slots, episodes=episodes, hold=hold) for hold in holds]
-        for controller in (make_controller(REFERENCE, slots), *oracles):
-            results += evaluate_controller(controller, SeparatorRunner(loaded, slots), episodes, library,
-                                           env_config=EnvConfig(camera=False), threads=args.threads,
-                                           progress=not args.no_progress)
-        meta = {"command": command, "checkpoint": repo_relative(loaded.path), "task": args.task,
-                "sound_splits": splits, "count_per_split": args.count, "threads": args.threads,
-                "wall_seconds": round(time.perf_counter() - started, 1),
-                "load_average": load_averages()}
-        paths = write_results(results, args.out, title=f"Approach oracle vs Stand In-Place, {args.task} test episodes",
-                              meta=meta, command=command, setup=f"separator {file_label(loaded.path)}",
-                              reference=REFERENCE)
-    except M2HError as exc:
-        print(f"approach_oracle: error: {exc}", file=sys.stderr)
-        return 2
+    splits = args.sound_split.split(",")
+    if any(s not in SOUND_SPLITS for s in splits) or args.count < 1 or args.slots < 1 or args.threads < 1:
+        raise ConfigError(f"--sound-split must name {SOUND_SPLITS}; --count, --slots, --threads >= 1")
+    holds = args.hold.split(",")
+    if any(h not in ApproachOracle.HOLDS for h in holds):
+        raise ConfigError(f"--hold must name {sorted(ApproachOracle.HOLDS)}")
+    torch.set_num_threads(args.threads)
+    library, loaded = SoundLibrary.load(), load_separator(args.checkpoint)
+    episodes = [e for split in splits for e in episodes_for(
+        EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)[:args.count]]
+    slots = min(args.slots, len(episodes))
+    results = []
+    oracles = [ApproachOracle(slots, episodes=episodes, hold=hold) for hold in holds]
+    for controller in (make_controller(REFERENCE, slots), *oracles):
+        results += evaluate_controller(controller, SeparatorRunner(loaded, slots), episodes, library,
+                                       env_config=EnvConfig(camera=False), threads=args.threads,
+                                       progress=not args.no_progress)
+    meta = {"command": command, "checkpoint": repo_relative(loaded.path), "task": args.task,
+            "sound_splits": splits, "count_per_split": args.count, "threads": args.threads,
+            "wall_seconds": round(time.perf_counter() - started, 1),
+            "load_average": load_averages()}
+    paths = write_results(results, args.out, title=f"Approach oracle vs Stand In-Place, {args.task} test episodes",
+                          meta=meta, command=command, setup=f"separator {file_label(loaded.path)}",
+                          reference=REFERENCE)
     print(markdown_table(summarize(results)))
     print(f"final-step SI-SDR (GT phase) minus {REFERENCE}'s, same episodes:")
     print(paired_table(paired_differences(results, reference=REFERENCE)))

@@ -21,10 +21,11 @@ from pathlib import Path
 from m2h_ros.core.results import read_results
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
-from m2h_ros.errors import ConfigError, M2HError
+from m2h_ros.errors import ConfigError, reports_errors
 from m2h_ros.experiments.reach import gain_by_reach, gain_markdown, plot_reach, reach_markdown, reach_table
 
 
+@reports_errors("reach")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", nargs="+", type=Path, help="results.json files")
@@ -36,29 +37,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--png", type=Path, help="also plot the mean distance to the target vs step here")
     args = parser.parse_args(argv)
     command = shlex.join(["python", "scripts/experiments/reach.py", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        tags = args.tags.split(",") if args.tags else [""] * len(args.results)
-        if len(tags) != len(args.results):
-            raise ConfigError(f"--tags names {len(tags)} runs for {len(args.results)} results files")
-        results = [dataclasses.replace(r, controller=f"{r.controller}:{tag}" if tag else r.controller)
-                   for path, tag in zip(args.results, tags, strict=True) for r in read_results(path)]
-        library, episodes = SoundLibrary.load(), {}
-        for prefix in sorted({r.episode_id.rsplit("/", 1)[0] for r in results}):
-            parts = prefix.split("/")
-            if len(parts) != 4:
-                raise ConfigError(f"episode ids like {prefix!r}/... do not name split/task/sound split/scenario")
-            scene_split, task, sound_split, scenario = parts
-            config = EpisodeConfig(task=task, scene_split=scene_split, sound_split=sound_split, scenario=scenario)
-            episodes.update((e.episode_id, e) for e in episodes_for(config, library))
-        table = reach_markdown(reach_table(results, episodes))
-        if args.reference:
-            table += "\n\n" + gain_markdown(gain_by_reach(results, episodes, reference=args.reference),
-                                             reference=args.reference)
-        if args.png:
-            print(f"plot: {plot_reach(results, episodes, args.png)}")
-    except M2HError as exc:
-        print(f"reach: error: {exc}", file=sys.stderr)
-        return 2
+    tags = args.tags.split(",") if args.tags else [""] * len(args.results)
+    if len(tags) != len(args.results):
+        raise ConfigError(f"--tags names {len(tags)} runs for {len(args.results)} results files")
+    results = [dataclasses.replace(r, controller=f"{r.controller}:{tag}" if tag else r.controller)
+               for path, tag in zip(args.results, tags, strict=True) for r in read_results(path)]
+    library, episodes = SoundLibrary.load(), {}
+    for prefix in sorted({r.episode_id.rsplit("/", 1)[0] for r in results}):
+        parts = prefix.split("/")
+        if len(parts) != 4:
+            raise ConfigError(f"episode ids like {prefix!r}/... do not name split/task/sound split/scenario")
+        scene_split, task, sound_split, scenario = parts
+        config = EpisodeConfig(task=task, scene_split=scene_split, sound_split=sound_split, scenario=scenario)
+        episodes.update((e.episode_id, e) for e in episodes_for(config, library))
+    table = reach_markdown(reach_table(results, episodes))
+    if args.reference:
+        table += "\n\n" + gain_markdown(gain_by_reach(results, episodes, reference=args.reference),
+                                         reference=args.reference)
+    if args.png:
+        print(f"plot: {plot_reach(results, episodes, args.png)}")
     print(table)
     if args.out:
         args.out.write_text(f"# Where the walks end\n\nCommand: `{command}`\n\nGeodesic metres to the target's node "

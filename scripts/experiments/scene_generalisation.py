@@ -29,7 +29,7 @@ from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, Episode, EpisodeConfig, episodes_for  # noqa: E402
-from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
+from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.experiments.reach import geodesic_trace, walk_group  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
@@ -58,6 +58,7 @@ def seen_in_training(episodes: list[Episode], sound_split: str, library) -> int:
     return sum(key(e) in known for e in episodes)
 
 
+@reports_errors("scene_generalisation")
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--controllers", default="move2hear,gan_et_al",
@@ -72,36 +73,32 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     command = shlex.join(["python", "scripts/experiments/scene_generalisation.py", *(sys.argv[1:] if argv is None else argv)])
     started = time.perf_counter()
-    try:
-        specs = [item.partition("@") for item in args.controllers.split(",")]
-        for name, _, _ in specs:
-            controller_class(name)  # an unknown spec fails here, before minutes of episodes
-        if args.seed == TRAINING_SEED or min(args.count, args.slots, args.threads, args.step) < 1:
-            raise ConfigError(f"--seed must differ from the training's {TRAINING_SEED}; --count, --slots, --threads, "
-                              f"--step >= 1")
-        torch.set_num_threads(args.threads)
-        library, loaded = SoundLibrary.load(), load_separator(DEFAULT_SEPARATOR_CHECKPOINT)
-        rows = []
-        for scene_split in ("train", "val"):
-            episodes = scene_episodes(scene_split, args.sound_split, count=args.count, seed=args.seed, library=library)
-            seen = seen_in_training(episodes, args.sound_split, library) if scene_split == "train" else 0
-            by_id = {e.episode_id: e for e in episodes}
-            slots = min(args.slots, len(episodes))
-            for name, _, checkpoint in specs:
-                controller = make_controller(name, slots, checkpoint=checkpoint)
-                results = evaluate_controller(controller, SeparatorRunner(loaded, slots), episodes, library,
-                                              env_config=EnvConfig(camera=controller.uses_camera),
-                                              threads=args.threads, progress=False)
-                traces = [geodesic_trace(by_id[r.episode_id], r.actions) for r in results]
-                groups = [walk_group(t) for t in traces]
-                rows.append((scene_split, f"{name}{'@' + checkpoint if checkpoint else ''}", len(traces), seen,
-                             float(np.mean([t[0] for t in traces])),
-                             float(np.mean([t[0] - t[min(args.step, len(t) - 1)] for t in traces])),
-                             groups.count("ends on target") / len(groups),
-                             1 - groups.count("never on it") / len(groups)))
-    except M2HError as exc:
-        print(f"scene_generalisation: error: {exc}", file=sys.stderr)
-        return 2
+    specs = [item.partition("@") for item in args.controllers.split(",")]
+    for name, _, _ in specs:
+        controller_class(name)  # an unknown spec fails here, before minutes of episodes
+    if args.seed == TRAINING_SEED or min(args.count, args.slots, args.threads, args.step) < 1:
+        raise ConfigError(f"--seed must differ from the training's {TRAINING_SEED}; --count, --slots, --threads, "
+                          f"--step >= 1")
+    torch.set_num_threads(args.threads)
+    library, loaded = SoundLibrary.load(), load_separator(DEFAULT_SEPARATOR_CHECKPOINT)
+    rows = []
+    for scene_split in ("train", "val"):
+        episodes = scene_episodes(scene_split, args.sound_split, count=args.count, seed=args.seed, library=library)
+        seen = seen_in_training(episodes, args.sound_split, library) if scene_split == "train" else 0
+        by_id = {e.episode_id: e for e in episodes}
+        slots = min(args.slots, len(episodes))
+        for name, _, checkpoint in specs:
+            controller = make_controller(name, slots, checkpoint=checkpoint)
+            results = evaluate_controller(controller, SeparatorRunner(loaded, slots), episodes, library,
+                                          env_config=EnvConfig(camera=controller.uses_camera),
+                                          threads=args.threads, progress=False)
+            traces = [geodesic_trace(by_id[r.episode_id], r.actions) for r in results]
+            groups = [walk_group(t) for t in traces]
+            rows.append((scene_split, f"{name}{'@' + checkpoint if checkpoint else ''}", len(traces), seen,
+                         float(np.mean([t[0] for t in traces])),
+                         float(np.mean([t[0] - t[min(args.step, len(t) - 1)] for t in traces])),
+                         groups.count("ends on target") / len(groups),
+                         1 - groups.count("never on it") / len(groups)))
     lines = [f"| scenes | controller | episodes | of them in training | start (m) | gained by step {args.step} (m) "
              "| ends on target | ever on target |", "|---|---|---|---|---|---|---|---|"]
     lines += [f"| {s} | {c} | {n} | {seen} | {start:.2f} | {gain:.2f} | {ends:.3f} | {ever:.3f} |"

@@ -23,13 +23,14 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import TASKS, EpisodeConfig  # noqa: E402
-from m2h_ros.errors import ConfigError, M2HError  # noqa: E402
+from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.training.teacher_probe import collect_probe_data, fit_probe, ild_sign_accuracy  # noqa: E402
 from m2h_ros.paths import REPO_DIR  # noqa: E402
 from m2h_ros.training.ppo import TRAIN_FAR_STEPS, PPOConfig, PPOTrainer  # noqa: E402
 
 
+@reports_errors("teacher_probe")
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", choices=TASKS, default="near_target")
@@ -40,25 +41,21 @@ def main(argv=None) -> int:
     command = shlex.join(["python", "scripts/experiments/teacher_probe.py", *(sys.argv[1:] if argv is None else argv)])
     out = args.out or REPO_DIR / "docs" / "results" / f"teacher_probe_{args.task}"
     started = time.perf_counter()
+    if args.rollouts < 2:
+        raise ConfigError("--rollouts must be >= 2 (a fifth of the states is held out)")
+    far = args.task == "far_target"
+    episodes = EpisodeConfig(task=args.task, scene_split="train", sound_split="heard", count=3000, seed=args.seed,
+                             max_steps=TRAIN_FAR_STEPS if far else None)
+    config = PPOConfig(kind="navigation" if far else "quality", episodes=episodes, env=EnvConfig(camera=False),
+                       threads=1, teacher_coef=1.0, train_refiner=False, seed=args.seed)
+    trainer = PPOTrainer(config, SoundLibrary.load(), out_dir=out, progress=False)
     try:
-        if args.rollouts < 2:
-            raise ConfigError("--rollouts must be >= 2 (a fifth of the states is held out)")
-        far = args.task == "far_target"
-        episodes = EpisodeConfig(task=args.task, scene_split="train", sound_split="heard", count=3000, seed=args.seed,
-                                 max_steps=TRAIN_FAR_STEPS if far else None)
-        config = PPOConfig(kind="navigation" if far else "quality", episodes=episodes, env=EnvConfig(camera=False),
-                           threads=1, teacher_coef=1.0, train_refiner=False, seed=args.seed)
-        trainer = PPOTrainer(config, SoundLibrary.load(), out_dir=out, progress=False)
-        try:
-            data = collect_probe_data(trainer, args.rollouts)
-        finally:
-            trainer.env.close()
-        fits = {f"{'linear' if hidden == 0 else f'mlp{hidden}'}": fit_probe(data, hidden=hidden, seed=args.seed)
-                for hidden in (0, 128)}
-        accuracy, turning = ild_sign_accuracy(data)
-    except M2HError as exc:
-        print(f"teacher_probe: error: {exc}", file=sys.stderr)
-        return 2
+        data = collect_probe_data(trainer, args.rollouts)
+    finally:
+        trainer.env.close()
+    fits = {f"{'linear' if hidden == 0 else f'mlp{hidden}'}": fit_probe(data, hidden=hidden, seed=args.seed)
+            for hidden in (0, 128)}
+    accuracy, turning = ild_sign_accuracy(data)
     report = {"command": command, "task": args.task, "states": len(data.ild), "fits": fits,
               "ild_sign_accuracy": accuracy, "turning_states": turning,
               "wall_seconds": round(time.perf_counter() - started, 1),
