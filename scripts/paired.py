@@ -9,9 +9,11 @@ again.
         --reference move2hear:shipped
 
 Several results files (``results.json`` of ``scripts/evaluate.py``, the evaluator node or ``m2h-eval``)
-are read as one set, so runs of the same episodes compare too. A controller that played an episode in
-two files counts once if both runs agree (the same actions and scores, e.g. the reference evaluated
-beside each). Where they differ (say, two policy checkpoints behind one name), ``--tags`` names each
+are read as one set, so runs of the same episodes compare too. A ``results.csv`` (what ``docs/results/``
+keeps in git; its results.json is not) holds the final-step scores alone, which is all a paired
+comparison needs. A controller that played an episode in
+two files counts once if both runs agree (the same actions and scores, or the same final scores to
+the CSV's 6 decimals where one file is a CSV; e.g. the reference evaluated beside each). Where they differ (say, two policy checkpoints behind one name), ``--tags`` names each
 file's run: that controller becomes ``<controller>:<tag>`` per file; without tags it is an error.
 Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a reference).
 ``--png`` draws the differences as a forest plot (one panel per reference and task, each controller's
@@ -26,13 +28,13 @@ import sys
 from pathlib import Path
 
 from m2h_ros.core.results import (METRICS, EpisodeResult, paired_differences, paired_section, plot_paired,
-                                  read_results)
+                                  read_final_scores, read_results)
 from m2h_ros.errors import ConfigError, reports_errors
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("results", nargs="+", type=Path, help="results.json files")
+    parser.add_argument("results", nargs="+", type=Path, help="results.json (or results.csv) files")
     parser.add_argument("--reference", required=True, help="controller(s) to compare with, comma-separated")
     parser.add_argument("--tags", default="", help="one name per results file, comma-separated: its "
                         "controllers become <controller>:<tag>")
@@ -45,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
 def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
     if tags and len(tags) != len(paths):
         raise ConfigError(f"--tags names {len(tags)} runs for {len(paths)} results files")
-    runs = [read_results(path) for path in paths]
+    runs = [read_final_scores(path) if path.suffix == ".csv" else read_results(path) for path in paths]
     if tags:
         differing = _differing(runs)
         for tag, run in zip(tags, runs, strict=True):
@@ -58,7 +60,7 @@ def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
             key = _key(result)
             if key in seen:
                 first_path, first = seen[key]
-                if result != first:
+                if not _same_play(result, first):
                     raise ConfigError(f"{result.controller} played episode {result.episode_id} differently in "
                                       f"{first_path} and {path} (two runs of it: name them with --tags)")
                 continue
@@ -71,13 +73,21 @@ def _key(result: EpisodeResult) -> tuple[str, str, str, str]:
     return result.controller, result.task, result.sound_split, result.episode_id
 
 
+def _same_play(a: EpisodeResult, b: EpisodeResult) -> bool:
+    """The same episode played alike: equal results, or equal final scores where one came from a CSV."""
+    if a.actions and b.actions or not (a.actions or b.actions):
+        return a == b
+    return a.success == b.success and all(abs(a.final(m) - b.final(m)) <= 1e-6 * max(1.0, abs(b.final(m)))
+                                          for m in METRICS)
+
+
 def _differing(runs: list[list[EpisodeResult]]) -> set[str]:
     """Controllers that played some episode differently in two runs."""
     seen, differing = {}, set()
     for run in runs:
         for result in run:
             first = seen.setdefault(_key(result), result)
-            if result != first:
+            if not _same_play(result, first):
                 differing.add(result.controller)
     return differing
 

@@ -292,6 +292,23 @@ def read_results(path: str | Path) -> list[EpisodeResult]:
         raise ConfigError(f"cannot read results file {path}: {exc}") from exc
 
 
+def read_final_scores(path: str | Path) -> list[EpisodeResult]:
+    """The episodes of a results.csv written by :func:`write_results`: final-step scores only (each metric's
+    list holds its last value, 6 decimals; no actions). Enough for paired differences against tables
+    committed as CSV (the results.json beside them is not kept in git)."""
+    try:
+        with Path(path).open(newline="") as stream:
+            rows = list(csv.DictReader(stream))
+        return [EpisodeResult(episode_id=row["episode_id"], controller=row["controller"], task=row["task"],
+                              sound_split=row["sound_split"], scene_id=row["scene_id"],
+                              target_class=row["target_class"], condition=row["condition"],
+                              **{m: [float(row[f"final_{m}"])] for m in METRICS}, success=bool(int(row["success"])),
+                              path_length=float(row["path_length"]), shortest_path=float(row["shortest_path"]))
+                for row in rows]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"cannot read results file {path}: {exc}") from exc
+
+
 def plot_si_sdr_vs_step(results: Sequence[EpisodeResult], path: str | Path, *, title: str = "") -> Path:
     """Mean SI-SDR (GT phase) per step with its 95% CI band, one line per controller and task."""
     plt = agg_pyplot()

@@ -86,3 +86,20 @@ def test_forest_plot_orders_controllers_by_their_difference(paired, tmp_path, ca
     alone = write_results(run("doa", {"z": 1.0}) + run("random", {"y": 0.0}), tmp_path / "alone", plot=False)["json"]
     assert paired.main([str(alone), "--reference", "doa", "--png", str(tmp_path / "none.png")]) == 2
     assert "no paired differences to plot" in capsys.readouterr().err
+
+
+def test_a_committed_csv_pairs_as_its_json_does(paired, tmp_path, capsys):
+    """docs/results keeps results.csv in git, not results.json: a CSV's final scores pair the same, and the
+    same run read once from each counts once."""
+    written = write_results(run("doa", {"a": 1.25, "b": 3.0}) + run("stand_in_place", {"a": 0.0, "b": 0.5}),
+                            tmp_path / "one", plot=False)
+    candidate = write_results(run("move2hear", {"a": 3.0, "b": 4.0}) + run("doa", {"a": 1.25, "b": 3.0}),
+                              tmp_path / "two", plot=False)["json"]
+    tables = []
+    for first in (written["json"], written["csv"]):
+        assert paired.main([str(first), str(candidate), "--reference", "doa,stand_in_place"]) == 0
+        tables.append(capsys.readouterr().out)
+    assert tables[0] == tables[1] and "| move2hear | near_target | heard | 2 | +1.38 ± 4.76 |" in tables[0]
+    other = write_results(run("doa", {"a": 1.0, "b": 3.0}), tmp_path / "other", plot=False)["json"]
+    assert paired.main([str(written["csv"]), str(other), "--reference", "doa"]) == 2  # another run of doa
+    assert f"doa played episode a differently in {written['csv']} and {other}" in capsys.readouterr().err
