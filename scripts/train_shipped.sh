@@ -16,6 +16,10 @@
 #   navigation: pi^N + Stop ("The shipped pi^N + Stop"): two stages of 1,500 updates (480,000 env steps
 #               each) kickstarted by the approach teacher; stage 2 starts from stage 1's weights
 #               (--init-policy: a fresh Adam, lr decaying again from 3e-4).
+#   approach:   the far-target composite's walking policy before T^N ("The composite Move2Hear far-target"):
+#               the original's three actions, no Stop, rewarded by the geodesic distance gained; from pi^N +
+#               Stop's weights, 2,000 updates (640,000 env steps) on the 24 scenes of split train24, entropy
+#               0.02, kickstarted by the approach teacher; about 40 min with THREADS=1, as it ran.
 #
 #     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality; THREADS=1 ... for one thread
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_quality.pt
@@ -23,12 +27,14 @@
 #     cp OUT/separator.pt m2h_ros/models/default/separator_compact.pt
 #     scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation.pt
+#     THREADS=1 scripts/train_shipped.sh approach [OUT]   # default runs/policy_approach
+#     cp OUT/policy.pt m2h_ros/models/default/policy_approach.pt
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-KIND=${1:?usage: scripts/train_shipped.sh quality|refiner|navigation [OUT]}
+KIND=${1:?usage: scripts/train_shipped.sh quality|refiner|navigation|approach [OUT]}
 OUT=${2:-runs/policy_$KIND}
 THREADS=${THREADS:-2}
-case "$KIND" in quality|refiner|navigation) ;; *) echo "unknown kind '$KIND' (quality, refiner or navigation)" >&2; exit 2 ;; esac
+case "$KIND" in quality|refiner|navigation|approach) ;; *) echo "unknown kind '$KIND' (quality, refiner, navigation or approach)" >&2; exit 2 ;; esac
 "$ROOT/scripts/setup.sh"
 set +eu  # env.sh sources colcon's setup.bash, which is not written for errexit/nounset
 source "$ROOT/env.sh"
@@ -53,4 +59,7 @@ case "$KIND" in
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
         --out "$OUT/stage2"
     echo "[train_shipped] pi^N + Stop: $OUT/stage2/policy.pt" ;;
+  approach)
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT"
+    echo "[train_shipped] the composite's approach policy: $OUT/policy.pt" ;;
 esac

@@ -19,7 +19,8 @@ Gan et al. (supervised location / Stop predictors, a depth occupancy map and a p
 
 Checkpoints: ``checkpoint`` names a policy file (``policy.pt`` of a training run); empty means the
 shipped one in ``m2h_ros/models/default/policy_<kind>.pt``. For ``move2hear`` it names a directory
-holding ``policy_quality.pt`` and ``policy_navigation.pt`` (default: the shipped ones). A missing
+holding ``policy_quality.pt`` and ``policy_navigation.pt``, and where it has one ``policy_approach.pt``
+(default: the shipped ones, the approach policy among them). A missing
 file is a CheckpointError that says which training command writes it. Pair a pi^Q policy with the
 separator trained alongside it (``separator.pt`` beside its ``policy.pt``): f^R was trained with it.
 
@@ -52,9 +53,11 @@ def default_policy_path(kind: str) -> Path:
     return DEFAULT_POLICY_DIR / f"policy_{kind}.pt"
 
 
-# The shipped pi^Q and pi^N come from scripts/train_shipped.sh (their recipes); the rest from PPO's defaults.
+# The shipped pi^Q, pi^N and approach policy come from scripts/train_shipped.sh (their recipes); the rest from
+# PPO's defaults.
 SHIPPED_RECIPES = {"quality": ("scripts/train_shipped.sh quality", "runs/policy_quality/stage2/policy.pt"),
-                   "navigation": ("scripts/train_shipped.sh navigation", "runs/policy_navigation/stage2/policy.pt")}
+                   "navigation": ("scripts/train_shipped.sh navigation", "runs/policy_navigation/stage2/policy.pt"),
+                   "approach": ("THREADS=1 scripts/train_shipped.sh approach", "runs/policy_approach/policy.pt")}
 
 
 def train_command(kind: str) -> str:
@@ -193,14 +196,18 @@ class AVNavigator(SinglePolicy):
 
 
 class Move2Hear(LearnedController):
-    """The paper's Move2Hear: pi^Q near-target; far-target pi^N until step ``switch_step``, then pi^Q.
+    """The paper's Move2Hear: pi^Q near-target; far-target a navigation policy until step ``switch_step``,
+    then pi^Q.
 
-    pi^N's Stop is masked unless ``navigation_stop``: the original's far-target composite has no Stop
-    (its pi^N + Stop is the navigation experiment's policy), so the episode runs to its step limit.
+    The original's far-target composite has no Stop (its pi^N + Stop is the navigation experiment's
+    policy), so the episode runs to its step limit: the folder's approach policy (trained without Stop, the
+    shipped folder has one) walks, else pi^N + Stop with its Stop masked; ``navigation_stop`` walks with
+    pi^N + Stop, Stop kept.
     """
 
     name = "move2hear"
-    summary = "Move2Hear: pi^Q near-target; pi^N (Stop masked) until step T^N, then pi^Q far-target (paper Sec. 4)"
+    summary = ("Move2Hear: pi^Q near-target; far-target an approach policy (no Stop) until step T^N, then pi^Q "
+               "(paper Sec. 4)")
 
     def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False,
                  switch_step: int = DEFAULT_SWITCH_STEP, navigation_stop: bool = False) -> None:

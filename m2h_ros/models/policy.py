@@ -360,7 +360,7 @@ class LoadedPolicy:
 
     net: PolicyNet
     config: PolicyConfig
-    policy_kind: str  # the training kind: quality | navigation | novelty | av_navigator
+    policy_kind: str  # the training kind: quality | navigation | approach | novelty | av_navigator
     stft: StftConfig
     path: Path
     metadata: dict[str, Any] = field(default_factory=dict)

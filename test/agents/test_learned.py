@@ -186,6 +186,14 @@ def test_composite_walks_with_an_approach_policy_where_the_folder_has_one(tmp_pa
         make_controller("move2hear", 1, checkpoint=str(tmp_path)).reset(0, start("far_target"))
 
 
+def test_the_shipped_composite_walks_with_the_shipped_approach_policy():
+    controller = make_controller("move2hear", 1)
+    controller.reset(0, start("far_target"))
+    default = learned.DEFAULT_POLICY_DIR
+    assert controller.model_files() == [default / "policy_quality.pt", default / "policy_approach.pt"]
+    assert controller.navigation.loaded.policy_kind == "approach" and not controller.navigation.loaded.config.stop
+
+
 def test_av_navigator_reads_the_mixture_and_the_target_class(tmp_path):
     config = PolicyConfig(inputs="mixture", stop=True, camera=False, hidden=16, channels=(4, 8, 4))
     saved(tmp_path / "av.pt", config, "av_navigator", favour=1)  # network action 1 = MOVE_FORWARD
