@@ -91,10 +91,14 @@ def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
     assert (navigation.kind, navigation.updates, navigation.teacher_coef, navigation.episodes.task) == \
         ("navigation", 1500, 1.0, "far_target")
     assert navigation.lr == 1e-4  # a flag after the file overrides it
+    approach = config_from_args(parser.parse_args(["@params/recipes/policy_approach.args", "--threads", "1"]))
+    assert (approach.kind, approach.entropy_coef, approach.episodes.scene_split, approach.updates, approach.seed) == \
+        ("approach", 0.02, "train24", 2000, 0)  # what the shipped policy_approach.pt trained with
+    assert approach.init_policy.endswith("models/default/policy_navigation.pt")
     refiner_stage = config_from_args(parser.parse_args(["@params/recipes/policy_quality.args", "--no-frozen-refiner"]))
     assert refiner_stage.refiner_trained and not stage2.refiner_trained
     # Both train against the passively pretrained separator, not the default one whose f^R trained beside pi^Q.
-    for config in (stage2, navigation, refiner_stage):
+    for config in (stage2, navigation, refiner_stage, approach):
         assert (REPO_DIR / config.separator).resolve() == PRETRAINED_SEPARATOR_CHECKPOINT.resolve()
     with pytest.raises(SystemExit):
         parser.parse_args(["@params/recipes/no_such_recipe.args"])
