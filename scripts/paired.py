@@ -11,11 +11,12 @@ again.
 Several results files (``results.json`` of ``scripts/evaluate.py``, the evaluator node or ``m2h-eval``)
 are read as one set, so runs of the same episodes compare too. A ``results.csv`` (what ``docs/results/``
 keeps in git; its results.json is not) holds the final-step scores alone, which is all a paired
-comparison needs. A controller that played an episode in
-two files counts once if both runs agree (the same actions and scores, or the same final scores to
-the CSV's 6 decimals where one file is a CSV; e.g. the reference evaluated beside each). Where they differ (say, two policy checkpoints behind one name), ``--tags`` names each
-file's run: that controller becomes ``<controller>:<tag>`` per file; without tags it is an error.
-Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a reference).
+comparison needs. A controller that played an episode in two files counts once if both runs agree (the
+same actions and scores, or the same final scores to the CSV's 6 decimals where one file is a CSV; e.g.
+the reference evaluated beside each). Where they differ (say, two policy checkpoints behind one name),
+``--tags`` names each file's run: that controller becomes ``<controller>:<tag>`` per file; without tags
+it is an error. Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a
+reference).
 ``--png`` draws the differences as a forest plot (one panel per reference and task, each controller's
 mean and 95% CI per sound split).
 """
