@@ -108,7 +108,7 @@ def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
 def test_train_shipped_names_its_kinds():
     result = subprocess.run(["bash", str(REPO_DIR / "scripts" / "train_shipped.sh"), "pi_x"], capture_output=True,
                             text=True, timeout=30)
-    assert result.returncode == 2 and "unknown kind 'pi_x' (quality, refiner or navigation)" in result.stderr
+    assert result.returncode == 2 and "unknown kind 'pi_x' (quality, refiner, navigation or approach)" in result.stderr
 
 
 def test_gae_matches_a_hand_computation():
