@@ -76,7 +76,7 @@ def _key(result: EpisodeResult) -> tuple[str, str, str, str]:
 
 def _same_play(a: EpisodeResult, b: EpisodeResult) -> bool:
     """The same episode played alike: equal results, or equal final scores where one came from a CSV."""
-    if a.actions and b.actions or not (a.actions or b.actions):
+    if bool(a.actions) == bool(b.actions):  # both from JSON, or both from CSV
         return a == b
     return a.success == b.success and all(abs(a.final(m) - b.final(m)) <= 1e-6 * max(1.0, abs(b.final(m)))
                                           for m in METRICS)
