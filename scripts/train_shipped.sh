@@ -13,20 +13,24 @@
 #               training, f^R's L1 trained on the shipped pi^Q's trajectories (the policy trains on too, Adam
 #               1e-4; its weights are not shipped), from the pretrained separator: 500 updates (320,000 env
 #               steps, seed 2), about 33 min.
-#   navigation: pi^N + Stop ("The shipped pi^N + Stop"): two stages of 1,500 updates (480,000 env steps
-#               each) kickstarted by the approach teacher; stage 2 starts from stage 1's weights
-#               (--init-policy: a fresh Adam, lr decaying again from 3e-4).
+#   navigation: pi^N + Stop ("The shipped pi^N + Stop"), kickstarted by the approach teacher throughout: two
+#               stages of 1,500 updates (480,000 env steps each) on the 12 train scenes, stage 2 from stage 1's
+#               weights (--init-policy: a fresh Adam, lr decaying again from 3e-4), which is
+#               policy_navigation_stage2.pt, where the approach policy starts; stage 3 from the shipped approach
+#               policy (its Stop row new), 2,000 updates (640,000 env steps) on split train24, entropy 0.02,
+#               about 40 min with THREADS=1, as it ran.
 #   approach:   the far-target composite's walking policy before T^N ("The composite Move2Hear far-target"):
 #               the original's three actions, no Stop, rewarded by the geodesic distance gained; from pi^N +
-#               Stop's weights, 2,000 updates (640,000 env steps) on the 24 scenes of split train24, entropy
-#               0.02, kickstarted by the approach teacher; about 40 min with THREADS=1, as it ran.
+#               Stop's stage-2 weights, 2,000 updates (640,000 env steps) on the 24 scenes of split train24,
+#               entropy 0.02, kickstarted by the approach teacher; about 40 min with THREADS=1, as it ran.
 #
 #     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality; THREADS=1 ... for one thread
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_quality.pt
 #     scripts/train_shipped.sh refiner [OUT]      # default runs/policy_refiner
 #     cp OUT/separator.pt m2h_ros/models/default/separator_compact.pt
-#     scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
-#     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation.pt
+#     THREADS=1 scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
+#     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation_stage2.pt
+#     cp OUT/stage3/policy.pt m2h_ros/models/default/policy_navigation.pt
 #     THREADS=1 scripts/train_shipped.sh approach [OUT]   # default runs/policy_approach
 #     cp OUT/policy.pt m2h_ros/models/default/policy_approach.pt
 set -euo pipefail
@@ -58,7 +62,9 @@ case "$KIND" in
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT/stage1"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
         --out "$OUT/stage2"
-    echo "[train_shipped] pi^N + Stop: $OUT/stage2/policy.pt" ;;
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 2000 --scene-split train24 \
+        --entropy-coef 0.02 --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
+    echo "[train_shipped] pi^N + Stop: $OUT/stage3/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
   approach)
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT"
     echo "[train_shipped] the composite's approach policy: $OUT/policy.pt" ;;

@@ -94,7 +94,7 @@ def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
     approach = config_from_args(parser.parse_args(["@params/recipes/policy_approach.args", "--threads", "1"]))
     assert (approach.kind, approach.entropy_coef, approach.episodes.scene_split, approach.updates, approach.seed) == \
         ("approach", 0.02, "train24", 2000, 0)  # what the shipped policy_approach.pt trained with
-    assert approach.init_policy.endswith("models/default/policy_navigation.pt")
+    assert approach.init_policy.endswith("models/default/policy_navigation_stage2.pt")  # pi^N before stage 3
     refiner_stage = config_from_args(parser.parse_args(["@params/recipes/policy_quality.args", "--no-frozen-refiner"]))
     assert refiner_stage.refiner_trained and not stage2.refiner_trained
     # Both train against the passively pretrained separator, not the default one whose f^R trained beside pi^Q.
