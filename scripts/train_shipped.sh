@@ -17,8 +17,9 @@
 #               stages of 1,500 updates (480,000 env steps each) on the 12 train scenes, stage 2 from stage 1's
 #               weights (--init-policy: a fresh Adam, lr decaying again from 3e-4), which is
 #               policy_navigation_stage2.pt, where the approach policy starts; stage 3 from the shipped approach
-#               policy (its Stop row new), 2,000 updates (640,000 env steps) on split train24, entropy 0.02,
-#               about 40 min with THREADS=1, as it ran.
+#               policy (its Stop row new), 2,000 updates (640,000 env steps) on split train24, entropy 0.02; stage
+#               4 from stage 3's weights, 1,500 updates (480,000 env steps) on other train24 episodes (seed 1);
+#               THREADS=1, as they ran: stage 3 took 60 min beside other trainings, stage 4 42 min beside one.
 #   approach:   the far-target composite's walking policy before T^N ("The composite Move2Hear far-target"):
 #               the original's three actions, no Stop, rewarded by the geodesic distance gained; from pi^N +
 #               Stop's stage-2 weights, 2,000 updates (640,000 env steps) on the 24 scenes of split train24,
@@ -30,7 +31,7 @@
 #     cp OUT/separator.pt m2h_ros/models/default/separator_compact.pt
 #     THREADS=1 scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation_stage2.pt
-#     cp OUT/stage3/policy.pt m2h_ros/models/default/policy_navigation.pt
+#     cp OUT/stage4/policy.pt m2h_ros/models/default/policy_navigation.pt
 #     THREADS=1 scripts/train_shipped.sh approach [OUT]   # default runs/policy_approach
 #     cp OUT/policy.pt m2h_ros/models/default/policy_approach.pt
 set -euo pipefail
@@ -44,7 +45,7 @@ set +eu  # env.sh sources colcon's setup.bash, which is not written for errexit/
 source "$ROOT/env.sh"
 set -eu
 cd "$ROOT"
-# The flags both stages share are the recipe file's (params/recipes/policy_KIND.args, also what
+# The flags a kind's stages share are the recipe file's (params/recipes/policy_KIND.args, also what
 # scripts/bench/train.py --shipped-quality times); each stage adds its own. The f^R stage is pi^Q's recipe
 # with f^R trained.
 recipe=@params/recipes/policy_${KIND/refiner/quality}.args
@@ -64,7 +65,9 @@ case "$KIND" in
         --out "$OUT/stage2"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 2000 --scene-split train24 \
         --entropy-coef 0.02 --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
-    echo "[train_shipped] pi^N + Stop: $OUT/stage3/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
+        --seed 1 --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
+    echo "[train_shipped] pi^N + Stop: $OUT/stage4/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
   approach)
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT"
     echo "[train_shipped] the composite's approach policy: $OUT/policy.pt" ;;

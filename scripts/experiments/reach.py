@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"plot: {plot_reach(results, episodes, args.png)}")
     print(table)
     if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(f"# Where the walks end\n\nCommand: `{command}`\n\nGeodesic metres to the target's node "
                             f"(recorded actions replayed on the navigation grid), mean over episodes.\n\n{table}\n")
         print(f"markdown: {args.out}")
