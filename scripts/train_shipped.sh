@@ -63,10 +63,12 @@ case "$KIND" in
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT/stage1"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
         --out "$OUT/stage2"
-    python scripts/train_policy.py "$recipe" --threads "$THREADS" --updates 2000 --scene-split train24 \
-        --entropy-coef 0.02 --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
-    python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
-        --seed 1 --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
+    # Stages 3 and 4 train as the approach policy did: 24 scenes, entropy 0.02.
+    as_approach=(--scene-split train24 --entropy-coef 0.02)
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" "${as_approach[@]}" --updates 2000 \
+        --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" "${as_approach[@]}" --seed 1 \
+        --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
     echo "[train_shipped] pi^N + Stop: $OUT/stage4/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
   approach)
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT"

@@ -111,8 +111,8 @@ def test_the_shipped_pi_n_is_the_fourth_stage_of_train_shipped_navigation(monkey
     stage4 = config_from_args(build_parser().parse_args(
         ["@params/recipes/policy_navigation.args", "--threads", "1", "--scene-split", "train24", "--entropy-coef", "0.02",
          "--seed", "1", "--init-policy", "runs/policy_navigation/stage3/policy.pt"])).to_dict()
-    shipped = torch.load(REPO_DIR / "m2h_ros/models/default/policy_navigation.pt", map_location="cpu",
-                         weights_only=False)["metadata"]["config"]
+    shipped = load_policy(REPO_DIR / "m2h_ros/models/default/policy_navigation.pt",
+                          policy_kind="navigation").metadata["config"]
     assert {name for name, value in stage4.items() if shipped[name] != value} == {"init_policy"}  # stage 3 ran elsewhere
     assert (shipped["updates"], shipped["teacher_coef"], shipped["episodes"]["scene_split"]) == (1500, 1.0, "train24")
 
