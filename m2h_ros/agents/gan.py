@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-import torch
 
 from m2h_ros.agents.base import ControllerObservation, EpisodeStart
 from m2h_ros.agents.baselines import TaskAware
@@ -39,7 +38,7 @@ from m2h_ros.core.world.camera import CameraConfig, pixel_slopes
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT
 from m2h_ros.core.world.navgrid import HEADING_STEPS, N_HEADINGS, heading_index
 from m2h_ros.errors import ConfigError
-from m2h_ros.models.locator import DEFAULT_LOCATOR_CHECKPOINT, load_locator, locator_input, map_position
+from m2h_ros.models.locator import DEFAULT_LOCATOR_CHECKPOINT, load_locator, map_position
 
 OBSTACLE_Z = (0.1, 1.9)  # metres above the floor: what the robot would hit
 WALL_BAND = 0.12  # metres either side of a cell boundary that count as "on the line between cells"
@@ -166,15 +165,13 @@ class GanEtAl(TaskAware):
         self.moved_forward[slot] = False
         self.confident[slot] = 0
 
-    @torch.no_grad()
     def _act(self, obs: ControllerObservation) -> np.ndarray:
         if obs.depth is None:
             raise ConfigError(f"{self.name} needs the depth camera: use EnvConfig(camera=True)")
-        out = self.locator.net(locator_input(obs.audio, self.target_class, bands=self.locator.config.bands,
-                                             config=self.locator.stft))
+        offset, on_target = self.locator.predict(obs.audio, self.target_class)
         poses = obs.pose.astype(np.float64)
-        heard = map_position(out.offset.numpy(), poses)  # where each slot's step says the target is
-        confident = torch.sigmoid(out.stop_logit).numpy() > self.stop_threshold
+        heard = map_position(offset, poses)  # where each slot's step says the target is
+        confident = on_target > self.stop_threshold
         self.confident = np.where(confident, self.confident + 1, 0)
         actions = np.empty(self.n_slots, np.int64)
         for slot in range(self.n_slots):

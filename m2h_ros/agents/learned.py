@@ -3,7 +3,8 @@
 * ``move2hear_quality`` (pi^Q, paper Sec. 4): moves to improve the separation; rewarded by the
   step-to-step decrease of the refined estimate's NMSE. Three actions (no Stop).
 * ``move2hear_navigation`` (pi^N + Stop, Sec. 4 far-target): navigates to the target and stops,
-  on the navigation reward. Four actions.
+  on the navigation reward. Four actions. ``move2hear_navigation:confirm`` takes its Stop only where the
+  supervised Stop predictor of Gan et al.'s sound locator agrees (p >= 0.5 of standing on the target).
 * ``move2hear`` (the paper's Move2Hear): near-target pi^Q throughout; far-target pi^N until step
   ``switch_step`` (T^N, default 80 of 100 as the original; choose it on the validation split),
   then pi^Q with a fresh GRU state (as the original's policy switch). pi^N's Stop is masked (its
@@ -38,10 +39,11 @@ import numpy as np
 import torch
 
 from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
-from m2h_ros.agents.registry import GREEDY, NAVIGATION_STOP
+from m2h_ros.agents.registry import CONFIRM_STOP, GREEDY, NAVIGATION_STOP
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
 from m2h_ros.core.world.episodes import STOP
 from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.models.locator import load_locator
 from m2h_ros.models.policy import LoadedPolicy, load_policy, policy_inputs
 from m2h_ros.paths import PACKAGE_DIR
 
@@ -181,8 +183,38 @@ class Move2HearQuality(SinglePolicy):
 
 
 class Move2HearNavigation(SinglePolicy):
+    """pi^N + Stop. ``confirm_stop`` > 0 (spec ``move2hear_navigation:confirm``): pi^N's Stop is taken only
+    where the supervised Stop predictor (the shipped sound locator's, Gan et al.'s) gives the robot at least
+    that probability of standing on the target's node; elsewhere Stop's probability is dropped and the rest
+    renormalised, so a Stop the two disagree on becomes a step of the walk."""
+
     name, kind = "move2hear_navigation", "navigation"
     summary = "Move2Hear pi^N + Stop: navigates to the target and stops (paper Sec. 4, far-target)"
+
+    def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False,
+                 confirm_stop: float = 0.0) -> None:
+        if isinstance(confirm_stop, bool) or not isinstance(confirm_stop, (int, float)) or not 0 <= confirm_stop < 1:
+            raise ConfigError(f"confirm_stop={confirm_stop!r} must be a probability in [0, 1) (0: no check)")
+        self.confirm_stop = float(confirm_stop)
+        self.locator = load_locator() if self.confirm_stop else None
+        super().__init__(n_slots, seed=seed, checkpoint=checkpoint, greedy=greedy)
+
+    def _variant(self) -> str:
+        return CONFIRM_STOP if self.confirm_stop else ""
+
+    def model_files(self) -> list[Path]:
+        return super().model_files() + ([self.locator.path] if self.locator else [])
+
+    def _act(self, obs: ControllerObservation) -> np.ndarray:
+        if self.locator is None:
+            return super()._act(obs)
+        _, on_target = self.locator.predict(obs.audio, self.target_class)
+        confirmed = on_target >= self.confirm_stop
+        actions = np.empty(self.n_slots, np.int64)
+        for rows, allow_stop in ((np.flatnonzero(confirmed), True), (np.flatnonzero(~confirmed), False)):
+            if len(rows):
+                actions[rows] = self._choose(self.drivers[0], obs, rows, allow_stop=allow_stop)
+        return actions
 
 
 class Novelty(SinglePolicy):

@@ -133,6 +133,13 @@ class LoadedLocator:
     path: Path
     metadata: dict[str, Any] = field(default_factory=dict)
 
+    @torch.no_grad()
+    def predict(self, audio: np.ndarray, class_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(B, 2, N) binaural mixtures and (B,) target classes -> ((B, 2) offsets in metres, forward and
+        left in the robot's frame; (B,) probabilities that the robot stands on the target's node)."""
+        out = self.net(locator_input(audio, class_index, bands=self.config.bands, config=self.stft))
+        return out.offset.numpy(), torch.sigmoid(out.stop_logit).numpy()
+
 
 def save_locator(path: str | os.PathLike, net: SoundLocator, *, stft_config: StftConfig = DEFAULT_STFT,
                  metadata: dict[str, Any] | None = None) -> Path:

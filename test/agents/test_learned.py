@@ -8,8 +8,10 @@ import torch
 from m2h_ros.agents import learned
 from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
 from m2h_ros.agents.registry import LEARNED, controller_class, make_controller
+from m2h_ros.core.sounds.library import TARGET_CATEGORIES
 from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT
 from m2h_ros.errors import CheckpointError, ConfigError
+from m2h_ros.models.locator import DEFAULT_LOCATOR_CHECKPOINT, load_locator
 from m2h_ros.models.policy import PolicyConfig, PolicyNet, policy_inputs, save_policy
 
 SMALL = PolicyConfig(hidden=16, channels=(4, 8, 4), image_size=40)
@@ -203,3 +205,32 @@ def test_av_navigator_reads_the_mixture_and_the_target_class(tmp_path):
     assert controller.act(observation(1)).tolist() == [MOVE_FORWARD]
     with pytest.raises(CheckpointError, match="'av_navigator' policy, expected 'quality'"):
         make_controller("move2hear_quality", 1, checkpoint=str(tmp_path / "av.pt"))
+
+
+def test_confirmed_stop_is_taken_only_where_the_supervised_stop_predictor_agrees(tmp_path):
+    saved(tmp_path / "nav.pt", NAVIGATION, "navigation", favour=0)  # pi^N: Stop's probability ~1
+    checkpoint = str(tmp_path / "nav.pt")
+    controller = make_controller("move2hear_navigation:confirm", 4, seed=3, checkpoint=checkpoint)
+    assert controller.name == "move2hear_navigation:confirm" and controller.confirm_stop == 0.5
+    assert controller.model_files() == [tmp_path / "nav.pt", DEFAULT_LOCATOR_CHECKPOINT]
+    targets = ("speech", "music", "music", "speech")
+    for slot in range(4):
+        controller.reset(slot, start("far_target", seed=slot, target=targets[slot]))
+    class_index = np.array([TARGET_CATEGORIES.index(t) for t in targets])
+    agreed = []
+    for step in range(8):
+        obs = observation(4, step, seed=step)
+        obs.audio[1] *= 30  # louder and quieter mixtures: the shipped locator's answers differ between slots
+        obs.audio[2] *= 0.01
+        _, on_target = load_locator().predict(obs.audio, class_index)
+        actions = controller.act(obs)
+        np.testing.assert_array_equal(actions == STOP, on_target >= 0.5)
+        agreed.extend(on_target >= 0.5)
+    assert 0 < sum(agreed) < len(agreed)  # both branches ran
+    plain = make_controller("move2hear_navigation", 1, checkpoint=checkpoint)
+    plain.reset(0, start("far_target"))
+    assert plain.act(observation(1)).tolist() == [STOP] and plain.model_files() == [tmp_path / "nav.pt"]
+    with pytest.raises(ConfigError, match="confirm_stop=1.5 must be a probability"):
+        make_controller("move2hear_navigation", 1, checkpoint=checkpoint, confirm_stop=1.5)
+    with pytest.raises(ConfigError, match="sets confirm_stop itself"):
+        make_controller("move2hear_navigation:confirm", 1, checkpoint=checkpoint, confirm_stop=0.7)
