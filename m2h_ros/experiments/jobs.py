@@ -60,7 +60,9 @@ def run_eval_job(job: EvalJob) -> list[EpisodeResult]:
                                  **dict(job.controller_options))
     results = evaluate_controller(controller, SeparatorRunner(loaded, slots), job.episodes, library,
                                   env_config=job.env, threads=1, progress=False, estimate=job.estimate)
-    return [dataclasses.replace(r, condition=job.condition) for r in results]
+    # Labelled by the spec asked for: the options are the condition's to name (an option such as confirm_stop
+    # would otherwise rename the controller, and the conditions could not be paired).
+    return [dataclasses.replace(r, condition=job.condition, controller=job.controller) for r in results]
 
 
 def run_jobs(function: Callable, jobs: Sequence, *, workers: int = 1, address: str | None = None,
