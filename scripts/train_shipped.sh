@@ -71,7 +71,7 @@ case "$KIND" in
         --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" "${as_approach[@]}" --seed 1 \
         --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
-    # Stages 5 and 6: the same on other episodes, entropy 0.01 (0.02 in stage 5 lowered SR, docs/policies.md).
+    # Stages 5 and 6: the same on other episodes, entropy 0.01 (a stage 5 with 0.02 scored lower, docs/policies.md).
     for stage in 5 6; do
         python scripts/train_policy.py "$recipe" --threads "$THREADS" "${as_approach[@]}" --entropy-coef 0.01 \
             --seed $((stage - 3)) --init-policy "$OUT/stage$((stage - 1))/policy.pt" --out "$OUT/stage$stage"
