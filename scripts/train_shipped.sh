@@ -65,15 +65,14 @@ case "$KIND" in
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT/stage1"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
         --out "$OUT/stage2"
-    # Stages 3 and 4 train as the approach policy did: 24 scenes, entropy 0.02.
-    as_approach=(--scene-split train24 --entropy-coef 0.02)
-    python scripts/train_policy.py "$recipe" --threads "$THREADS" "${as_approach[@]}" --updates 2000 \
-        --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
-    python scripts/train_policy.py "$recipe" --threads "$THREADS" "${as_approach[@]}" --seed 1 \
-        --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
-    # Stages 5 and 6: the same on other episodes, entropy 0.01 (a stage 5 with 0.02 scored lower, docs/policies.md).
+    # Stages 3 and 4 train as the approach policy did: 24 scenes, entropy 0.02; stages 5 and 6 with entropy 0.01
+    # (a stage 5 with 0.02 scored lower, docs/policies.md); stages 4-6 each from the stage before, other episodes.
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
+        --updates 2000 --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
+    python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
+        --seed 1 --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
     for stage in 5 6; do
-        python scripts/train_policy.py "$recipe" --threads "$THREADS" "${as_approach[@]}" --entropy-coef 0.01 \
+        python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.01 \
             --seed $((stage - 3)) --init-policy "$OUT/stage$((stage - 1))/policy.pt" --out "$OUT/stage$stage"
     done
     echo "[train_shipped] pi^N + Stop: $OUT/stage6/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;

@@ -165,6 +165,16 @@ class LearnedController(Controller):
         return driver.actions(allow_stop=allow_stop)[picks]
 
 
+    def _choose_in_groups(self, obs: ControllerObservation,
+                          groups: tuple[tuple[PolicyDriver | None, np.ndarray, bool], ...]) -> np.ndarray:
+        """Actions of all slots from (driver, rows, allow_stop) groups that partition them; an empty group's
+        driver is not run (it may not be loaded)."""
+        actions = np.empty(self.n_slots, np.int64)
+        for driver, rows, allow_stop in groups:
+            if len(rows):
+                actions[rows] = self._choose(driver, obs, rows, allow_stop=allow_stop)
+        return actions
+
 class SinglePolicy(LearnedController):
     """A controller that is one trained policy of kind ``kind``."""
 
@@ -210,11 +220,9 @@ class Move2HearNavigation(SinglePolicy):
             return super()._act(obs)
         _, on_target = self.locator.predict(obs.audio, self.target_class)
         confirmed = on_target >= self.confirm_stop
-        actions = np.empty(self.n_slots, np.int64)
-        for rows, allow_stop in ((np.flatnonzero(confirmed), True), (np.flatnonzero(~confirmed), False)):
-            if len(rows):
-                actions[rows] = self._choose(self.drivers[0], obs, rows, allow_stop=allow_stop)
-        return actions
+        driver = self.drivers[0]
+        return self._choose_in_groups(obs, ((driver, np.flatnonzero(confirmed), True),
+                                            (driver, np.flatnonzero(~confirmed), False)))
 
 
 class Novelty(SinglePolicy):
@@ -287,9 +295,5 @@ class Move2Hear(LearnedController):
         # pi^Q's GRU state starts fresh when it first acts (reset() marks it): at step 0 near-target,
         # at the switch step far-target.
         navigating = self.far & (obs.step < self.switch_step)
-        actions = np.empty(self.n_slots, np.int64)
-        for driver, rows, allow_stop in ((self.navigation, np.flatnonzero(navigating), self.navigation_stop),
-                                         (self.quality, np.flatnonzero(~navigating), True)):
-            if len(rows):
-                actions[rows] = self._choose(driver, obs, rows, allow_stop=allow_stop)
-        return actions
+        return self._choose_in_groups(obs, ((self.navigation, np.flatnonzero(navigating), self.navigation_stop),
+                                            (self.quality, np.flatnonzero(~navigating), True)))

@@ -109,8 +109,8 @@ def test_the_shipped_pi_n_is_the_sixth_stage_of_train_shipped_navigation(monkeyp
     monkeypatch.chdir(REPO_DIR)
     # scripts/train_shipped.sh navigation's stage 6, as its command line reads
     stage6 = config_from_args(build_parser().parse_args(
-        ["@params/recipes/policy_navigation.args", "--threads", "1", "--scene-split", "train24", "--entropy-coef", "0.02",
-         "--entropy-coef", "0.01", "--seed", "3", "--init-policy", "runs/policy_navigation/stage5/policy.pt"])).to_dict()
+        ["@params/recipes/policy_navigation.args", "--threads", "1", "--scene-split", "train24", "--entropy-coef", "0.01",
+         "--seed", "3", "--init-policy", "runs/policy_navigation/stage5/policy.pt"])).to_dict()
     shipped = load_policy(REPO_DIR / "m2h_ros/models/default/policy_navigation.pt",
                           policy_kind="navigation").metadata["config"]
     assert {name for name, value in stage6.items() if shipped[name] != value} == {"init_policy"}  # stage 5 ran elsewhere
