@@ -250,12 +250,15 @@ class Move2Hear(LearnedController):
                "(paper Sec. 4)")
 
     def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False,
-                 switch_step: int = DEFAULT_SWITCH_STEP, navigation_stop: bool = False) -> None:
-        if isinstance(switch_step, bool) or not isinstance(switch_step, (int, np.integer)) or switch_step < 0:
-            raise ConfigError(f"switch_step={switch_step!r} must be a non-negative int")
+                 switch_step: int = DEFAULT_SWITCH_STEP, near_switch_step: int = 0,
+                 navigation_stop: bool = False) -> None:
+        for name, value in (("switch_step", switch_step), ("near_switch_step", near_switch_step)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise ConfigError(f"{name}={value!r} must be a non-negative int")
         if not isinstance(navigation_stop, bool):
             raise ConfigError(f"navigation_stop={navigation_stop!r} must be a bool")
         self.switch_step = int(switch_step)
+        self.near_switch_step = int(near_switch_step)
         self.navigation_stop = navigation_stop
         self.far = np.zeros(n_slots, bool)
         super().__init__(n_slots, seed=seed, checkpoint=checkpoint, greedy=greedy)
@@ -285,7 +288,7 @@ class Move2Hear(LearnedController):
 
     def reset(self, slot: int, start: EpisodeStart) -> None:
         self.far[slot] = start.task == "far_target"
-        if self.far[slot] and self.navigation is None:
+        if (self.far[slot] or self.near_switch_step) and self.navigation is None:
             # Near-target runs need pi^Q only; pi^N (and its file) only once a far-target episode comes.
             self.navigation = self._load(self._navigation_kind())
             self.drivers.append(self.navigation)
@@ -294,6 +297,6 @@ class Move2Hear(LearnedController):
     def _act(self, obs: ControllerObservation) -> np.ndarray:
         # pi^Q's GRU state starts fresh when it first acts (reset() marks it): at step 0 near-target,
         # at the switch step far-target.
-        navigating = self.far & (obs.step < self.switch_step)
+        navigating = obs.step < np.where(self.far, self.switch_step, self.near_switch_step)
         return self._choose_in_groups(obs, ((self.navigation, np.flatnonzero(navigating), self.navigation_stop),
                                             (self.quality, np.flatnonzero(~navigating), True)))

@@ -49,6 +49,8 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
                         help="separator checkpoint of the conditions that name none (default: the shipped one; "
                              "m2h_ros/models/default/separator_compact_pretrained.pt re-runs a table made before "
                              "session 19)")
+    parser.add_argument("--policy-checkpoint", type=Path,
+                        help="the learned controllers' policy file (move2hear: a folder of them); default: the shipped ones")
     parser.add_argument("--no-progress", action="store_true")
     add_arguments(parser)
     args = parser.parse_args(argv)
@@ -61,7 +63,8 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
                      for c in swept]
         sweep = Sweep(controllers=args.controllers.split(","), tasks=args.task.split(","),
                       sound_splits=args.sound_split.split(","), conditions=swept, count=args.count,
-                      chunk=args.chunk, seed=args.seed)
+                      chunk=args.chunk, seed=args.seed,
+                      controller_checkpoint=str(args.policy_checkpoint.resolve()) if args.policy_checkpoint else "")
         results, rows = run_sweep(sweep, workers=args.workers, address=args.address,
                                   progress=not args.no_progress, desc=Path(script).stem)
     except (M2HError, ValueError) as exc:
@@ -69,7 +72,8 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
         return 2
     meta = {"count": args.count, "controller_seed": args.seed, "workers": args.address or args.workers,
             "conditions": [c.label for c in sweep.conditions],
-            **_separators(sweep.conditions)}
+            **_separators(sweep.conditions),
+            **({"policy_checkpoint": repo_relative(args.policy_checkpoint)} if args.policy_checkpoint else {})}
     paths = write_sweep(results, rows, args.out, title=title, xlabel=xlabel, command=command, meta=meta,
                         started=started, reference=reference if reference in sweep.controllers else None,
                         condition_reference=condition_reference)

@@ -119,3 +119,25 @@ def test_the_separator_flag_sets_the_conditions_that_name_none(monkeypatch, tmp_
     cli.sweep_main(["--out", str(tmp_path)], script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
                    conditions=conditions)
     assert [c.separator for c in seen[1].conditions] == ["/elsewhere/own.pt", ""]  # the shipped one
+
+
+def test_the_policy_checkpoint_flag_reaches_every_job(monkeypatch, tmp_path, folder_library):
+    from m2h_ros.experiments import cli  # noqa: PLC0415
+
+    seen = []
+
+    def stop_at_the_sweep(sweep, **_):
+        seen.append(sweep_jobs(sweep, folder_library)[0])
+        raise ConfigError("stopped before running")
+
+    monkeypatch.setattr(cli, "run_sweep", stop_at_the_sweep)
+    small = {"scene_preset": "small", "near_radius": 2.0, "max_steps": 2, "count": 2, "min_source_distance": 1.0}
+    argv = ["--policy-checkpoint", str(tmp_path / "folder"), "--count", "2", "--controllers", "stand_in_place,move2hear",
+            "--sound-split", "unheard", "--out", str(tmp_path)]
+    assert cli.sweep_main(argv, script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
+                          conditions=lambda args: [Condition(label="a", x=0, episodes=small)]) == 2
+    assert [job.controller_checkpoint for job in seen[0]] == ["", str(tmp_path / "folder")]  # learned ones only
+    cli.sweep_main(["--count", "2", "--controllers", "stand_in_place", "--sound-split", "unheard", "--out",
+                    str(tmp_path)], script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
+                   conditions=lambda args: [Condition(label="a", x=0, episodes=small)])
+    assert [job.controller_checkpoint for job in seen[1]] == [""]  # the shipped policies

@@ -188,6 +188,19 @@ def test_composite_walks_with_an_approach_policy_where_the_folder_has_one(tmp_pa
         make_controller("move2hear", 1, checkpoint=str(tmp_path)).reset(0, start("far_target"))
 
 
+def test_near_target_composite_walks_with_the_approach_policy_until_its_own_switch_step(tmp_path):
+    saved(tmp_path / "policy_approach.pt", SMALL, "approach", favour=2)  # network action 2 = TURN_RIGHT
+    saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
+    controller = make_controller("move2hear", 2, checkpoint=str(tmp_path), switch_step=6, near_switch_step=3)
+    controller.reset(0, start("near_target"))
+    controller.reset(1, start("far_target"))
+    actions = [controller.act(observation(2, s)).tolist() for s in range(8)]
+    assert [a[0] for a in actions] == [TURN_RIGHT] * 3 + [TURN_LEFT] * 5  # near-target: T = 3
+    assert [a[1] for a in actions] == [TURN_RIGHT] * 6 + [TURN_LEFT] * 2  # far-target: T^N = 6
+    with pytest.raises(ConfigError, match="near_switch_step=-2 must be a non-negative int"):
+        make_controller("move2hear", 1, checkpoint=str(tmp_path), near_switch_step=-2)
+
+
 def test_the_shipped_composite_walks_with_the_shipped_approach_policy():
     controller = make_controller("move2hear", 1)
     controller.reset(0, start("far_target"))
