@@ -19,9 +19,9 @@
 #               policy_navigation_stage2.pt, where the approach policy starts; stage 3 from the shipped approach
 #               policy (its Stop row new), 2,000 updates (640,000 env steps) on split train24, entropy 0.02; stage
 #               4 from stage 3's weights, 1,500 updates (480,000 env steps) on other train24 episodes (seed 1);
-#               stages 5 and 6 likewise from the stage before (seeds 2 and 3) with entropy 0.01;
+#               stages 5-9 likewise from the stage before (seeds 2-6) with entropy 0.01;
 #               THREADS=1, as they ran: stage 3 took 60 min beside other trainings, stage 4 42 min beside one,
-#               stages 5 and 6 38 and 32 min beside other jobs.
+#               stages 5-9 26-38 min each beside other jobs (about 6 h 10 min in all).
 #   approach:   the far-target composite's walking policy before T^N ("The composite Move2Hear far-target"):
 #               the original's three actions, no Stop, rewarded by the geodesic distance gained; from pi^N +
 #               Stop's stage-2 weights, 2,000 updates (640,000 env steps) on the 24 scenes of split train24,
@@ -33,7 +33,7 @@
 #     cp OUT/separator.pt m2h_ros/models/default/separator_compact.pt
 #     THREADS=1 scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation_stage2.pt
-#     cp OUT/stage6/policy.pt m2h_ros/models/default/policy_navigation.pt
+#     cp OUT/stage9/policy.pt m2h_ros/models/default/policy_navigation.pt
 #     THREADS=1 scripts/train_shipped.sh approach [OUT]   # default runs/policy_approach
 #     cp OUT/policy.pt m2h_ros/models/default/policy_approach.pt
 set -euo pipefail
@@ -65,17 +65,17 @@ case "$KIND" in
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT/stage1"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --init-policy "$OUT/stage1/policy.pt" \
         --out "$OUT/stage2"
-    # Stages 3 and 4 train as the approach policy did: 24 scenes, entropy 0.02; stages 5 and 6 with entropy 0.01
-    # (a stage 5 with 0.02 scored lower, docs/policies.md); stages 4-6 each from the stage before, other episodes.
+    # Stages 3 and 4 train as the approach policy did: 24 scenes, entropy 0.02; stages 5-9 with entropy 0.01
+    # (a stage 5 with 0.02 scored lower, docs/policies.md); stages 4-9 each from the stage before, other episodes.
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
         --updates 2000 --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
         --seed 1 --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
-    for stage in 5 6; do
+    for stage in 5 6 7 8 9; do
         python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.01 \
             --seed $((stage - 3)) --init-policy "$OUT/stage$((stage - 1))/policy.pt" --out "$OUT/stage$stage"
     done
-    echo "[train_shipped] pi^N + Stop: $OUT/stage6/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
+    echo "[train_shipped] pi^N + Stop: $OUT/stage9/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
   approach)
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT"
     echo "[train_shipped] the composite's approach policy: $OUT/policy.pt" ;;

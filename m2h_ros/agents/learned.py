@@ -10,6 +10,8 @@
   then pi^Q with a fresh GRU state (as the original's policy switch). pi^N's Stop is masked (its
   probability dropped, the rest renormalised), as the original's far-target composite has no Stop,
   so the episode runs to its step limit; ``navigation_stop=True`` (spec ``move2hear:stop``) keeps it.
+  ``near_switch_step`` T > 0 (default 0): near-target, the approach policy walks until step T, then pi^Q
+  (``scripts/experiments/near_switch_time.py``; no T > 0 scored above pi^Q on validation, docs/policies.md).
 * ``novelty`` (Sec. 5 baselines): PPO on a count-based exploration reward 1 / sqrt(n) per visited
   node, the same network as pi^Q.
 * ``av_navigator`` (Sec. 5, after Chen et al. 2020): PPO on the mixed binaural spectrogram + the
@@ -58,7 +60,7 @@ def default_policy_path(kind: str) -> Path:
 # The shipped pi^Q, pi^N and approach policy come from scripts/train_shipped.sh (their recipes); the rest from
 # PPO's defaults.
 SHIPPED_RECIPES = {"quality": ("scripts/train_shipped.sh quality", "runs/policy_quality/stage2/policy.pt"),
-                   "navigation": ("THREADS=1 scripts/train_shipped.sh navigation", "runs/policy_navigation/stage6/policy.pt"),
+                   "navigation": ("THREADS=1 scripts/train_shipped.sh navigation", "runs/policy_navigation/stage9/policy.pt"),
                    "approach": ("THREADS=1 scripts/train_shipped.sh approach", "runs/policy_approach/policy.pt")}
 
 
@@ -242,7 +244,7 @@ class Move2Hear(LearnedController):
     The original's far-target composite has no Stop (its pi^N + Stop is the navigation experiment's
     policy), so the episode runs to its step limit: the folder's approach policy (trained without Stop, the
     shipped folder has one) walks, else pi^N + Stop with its Stop masked; ``navigation_stop`` walks with
-    pi^N + Stop, Stop kept.
+    pi^N + Stop, Stop kept. ``near_switch_step`` > 0 lets the same walker lead near-target episodes too.
     """
 
     name = "move2hear"

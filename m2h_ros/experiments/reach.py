@@ -126,7 +126,8 @@ def gain_by_reach(results: Sequence[EpisodeResult], episodes: Mapping[str, Episo
                   ) -> list[tuple[str, str, str, str, str, int, float]]:
     """(controller, condition, task, sound split, group, episodes, mean final-step SI-SDR minus ``reference``'s
     on the same episode and condition) for each controller but the reference and each of :data:`REACH_GROUPS`
-    it has episodes in."""
+    it has episodes in. A reference played without a condition (``scripts/evaluate.py``) serves every condition
+    of a sweep on the same episodes."""
     final = {(r.episode_id, r.condition): r.si_sdr[-1] for r in results if r.controller == reference}
     if not final:
         raise ConfigError(f"no episodes of the reference {reference!r} in the results")
@@ -134,11 +135,12 @@ def gain_by_reach(results: Sequence[EpisodeResult], episodes: Mapping[str, Episo
     for result in results:
         if result.controller == reference:
             continue
-        if (result.episode_id, result.condition) not in final:
+        key = next((k for k in ((result.episode_id, result.condition), (result.episode_id, "")) if k in final), None)
+        if key is None:
             raise ConfigError(f"{result.controller} played {result.episode_id!r}, {reference} did not")
         group = walk_group(_trace(result, episodes))
         gains.setdefault((result.controller, result.condition, result.task, result.sound_split, group), []).append(
-            result.si_sdr[-1] - final[result.episode_id, result.condition])
+            result.si_sdr[-1] - final[key])
     order = {g: i for i, g in enumerate(REACH_GROUPS)}
     return [(*key, len(values), float(np.mean(values)))
             for key, values in sorted(gains.items(), key=lambda kv: (*kv[0][:4], order[kv[0][4]]))]

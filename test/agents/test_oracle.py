@@ -78,6 +78,12 @@ def test_replayed_walks_end_where_the_environment_took_them(folder_library, env_
     assert sum(g[5] for g in gains[1:]) == 6 and {g[0] for g in gains[1:]} == {"random"}
     with pytest.raises(ConfigError, match="played .*000000.*, stand_in_place did not"):
         gain_by_reach(rows + standing[1:], by_id, reference="stand_in_place")
+    swept = [dataclasses.replace(r, condition="T = 3") for r in rows]  # a sweep's conditions, one plain reference
+    assert [g[1:] for g in gain_by_reach(swept + standing, by_id, reference="stand_in_place")] == \
+        [("T = 3", *g[2:]) for g in gains]
+    with pytest.raises(ConfigError, match="stand_in_place did not"):  # a reference of another condition is not it
+        gain_by_reach(swept + [dataclasses.replace(r, condition="T = 5") for r in standing], by_id,
+                      reference="stand_in_place")
     moved = dataclasses.replace(rows[0], shortest_path=rows[0].shortest_path + 1)  # another episode behind the id
     with pytest.raises(ConfigError, match="not among the episodes given"):
         reach_table([moved], by_id)
