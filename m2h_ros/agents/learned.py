@@ -291,14 +291,14 @@ class Move2Hear(LearnedController):
     def reset(self, slot: int, start: EpisodeStart) -> None:
         self.far[slot] = start.task == "far_target"
         if (self.far[slot] or self.near_switch_step) and self.navigation is None:
-            # Near-target runs need pi^Q only; pi^N (and its file) only once a far-target episode comes.
+            # Near-target runs need pi^Q only (unless near_switch_step); the walker and its file only when needed.
             self.navigation = self._load(self._navigation_kind())
             self.drivers.append(self.navigation)
         super().reset(slot, start)
 
     def _act(self, obs: ControllerObservation) -> np.ndarray:
-        # pi^Q's GRU state starts fresh when it first acts (reset() marks it): at step 0 near-target,
-        # at the switch step far-target.
+        # pi^Q's GRU state starts fresh when it first acts (reset() marks it): at the switch step (near-target
+        # near_switch_step, default 0; far-target switch_step).
         navigating = obs.step < np.where(self.far, self.switch_step, self.near_switch_step)
         return self._choose_in_groups(obs, ((self.navigation, np.flatnonzero(navigating), self.navigation_stop),
                                             (self.quality, np.flatnonzero(~navigating), True)))
