@@ -80,3 +80,26 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
     print(paths["markdown"].read_text())
     print(", ".join(f"{kind}: {path}" for kind, path in paths.items()))
     return 0
+
+
+def switch_step_main(argv: Sequence[str] | None = None, *, script: str, doc: str, option: str, symbol: str, task: str,
+                     steps: str, reference_step: int, scene_split: str, title: str, xlabel: str) -> int:
+    """A sweep of one of ``move2hear``'s switch steps (``option``: far-target ``switch_step``, near-target
+    ``near_switch_step``) over ``--switch-steps``; conditions are labelled "``symbol`` = step" and compared with
+    ``reference_step``'s on the same episodes; ``--scene-split val`` to choose the step, test to report it."""
+
+    def label(step: int) -> str:
+        return f"{symbol} = {step}"
+
+    def conditions(args: argparse.Namespace) -> list[Condition]:
+        return [Condition(label=label(step), x=step, controller={option: step},
+                          episodes={"scene_split": args.scene_split})
+                for step in (int(v) for v in args.switch_steps.split(","))]
+
+    def arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--switch-steps", default=steps)
+        parser.add_argument("--scene-split", default=scene_split, choices=("val", "test"),
+                            help=f"val to choose {symbol}, test to report it")
+
+    return sweep_main(argv, script=script, doc=doc, conditions=conditions, controllers="move2hear", task=task,
+                      title=title, xlabel=xlabel, add_arguments=arguments, condition_reference=label(reference_step))

@@ -18,28 +18,10 @@ import sys
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from m2h_ros.experiments.cli import sweep_main  # noqa: E402
-from m2h_ros.experiments.sweep import Condition  # noqa: E402
-
-
-def label(switch_step: int) -> str:
-    return f"T = {switch_step}"
-
-
-def conditions(args):
-    steps = [int(v) for v in args.switch_steps.split(",")]
-    return [Condition(label=label(t), x=t, controller={"near_switch_step": t},
-                      episodes={"scene_split": args.scene_split}) for t in steps]
-
-
-def arguments(parser):
-    parser.add_argument("--switch-steps", default="0,5,10,20")
-    parser.add_argument("--scene-split", default="val", choices=("val", "test"),
-                        help="val to choose T, test to report it")
-
+from m2h_ros.experiments.cli import switch_step_main  # noqa: E402
 
 if __name__ == "__main__":
-    sys.exit(sweep_main(None, script=__file__, doc=__doc__, conditions=conditions, controllers="move2hear",
-                        task="near_target", title="Near-target final-step SI-SDR vs the approach policy's steps T",
-                        xlabel="near-target switch step T (approach policy before, pi^Q after)",
-                        add_arguments=arguments, condition_reference=label(0)))
+    sys.exit(switch_step_main(script=__file__, doc=__doc__, option="near_switch_step", symbol="T", task="near_target",
+                              steps="0,5,10,20", reference_step=0, scene_split="val",
+                              title="Near-target final-step SI-SDR vs the approach policy's steps T",
+                              xlabel="near-target switch step T (approach policy before, pi^Q after)"))

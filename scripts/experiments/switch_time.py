@@ -18,28 +18,10 @@ import sys
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from m2h_ros.agents.learned import DEFAULT_SWITCH_STEP  # noqa: E402
-from m2h_ros.experiments.cli import sweep_main  # noqa: E402
-from m2h_ros.experiments.sweep import Condition  # noqa: E402
-
-
-def label(switch_step: int) -> str:
-    return f"T^N = {switch_step}"
-
-
-def conditions(args):
-    steps = [int(v) for v in args.switch_steps.split(",")]
-    return [Condition(label=label(t), x=t, controller={"switch_step": t}, episodes={"scene_split": args.scene_split})
-            for t in steps]
-
-
-def arguments(parser):
-    parser.add_argument("--switch-steps", default="0,20,40,60,80,100")
-    parser.add_argument("--scene-split", default="test", choices=("val", "test"),
-                        help="val to choose T^N, test to report it")
-
+from m2h_ros.experiments.cli import switch_step_main  # noqa: E402
 
 if __name__ == "__main__":
-    sys.exit(sweep_main(None, script=__file__, doc=__doc__, conditions=conditions, controllers="move2hear",
-                        task="far_target", title="Far-target final-step SI-SDR vs the switch step T^N",
-                        xlabel="switch step T^N (pi^N before, pi^Q after)",
-                        add_arguments=arguments, condition_reference=label(DEFAULT_SWITCH_STEP)))
+    sys.exit(switch_step_main(script=__file__, doc=__doc__, option="switch_step", symbol="T^N", task="far_target",
+                              steps="0,20,40,60,80,100", reference_step=DEFAULT_SWITCH_STEP, scene_split="test",
+                              title="Far-target final-step SI-SDR vs the switch step T^N",
+                              xlabel="switch step T^N (pi^N before, pi^Q after)"))

@@ -98,7 +98,9 @@ def test_a_condition_passes_its_separator_to_the_jobs(folder_library, fast_acous
     assert [key[3] for key in keys] == [0, 1]
 
 
-def test_the_separator_flag_sets_the_conditions_that_name_none(monkeypatch, tmp_path):
+@pytest.fixture
+def sweeps_asked(monkeypatch):
+    """The Sweeps the command line built, each stopped before it runs (sweep_main then returns 2)."""
     from m2h_ros.experiments import cli  # noqa: PLC0415
 
     seen = []
@@ -108,6 +110,11 @@ def test_the_separator_flag_sets_the_conditions_that_name_none(monkeypatch, tmp_
         raise ConfigError("stopped before running")
 
     monkeypatch.setattr(cli, "run_sweep", stop_at_the_sweep)
+    return seen
+
+
+def test_the_separator_flag_sets_the_conditions_that_name_none(sweeps_asked, tmp_path):
+    from m2h_ros.experiments import cli  # noqa: PLC0415
 
     def conditions(args):
         return [Condition(label="own", x=0, separator="/elsewhere/own.pt"), Condition(label="any", x=1)]
@@ -115,29 +122,34 @@ def test_the_separator_flag_sets_the_conditions_that_name_none(monkeypatch, tmp_
     argv = ["--separator", str(tmp_path / "pretrained.pt"), "--out", str(tmp_path)]
     assert cli.sweep_main(argv, script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
                           conditions=conditions) == 2
-    assert [c.separator for c in seen[0].conditions] == ["/elsewhere/own.pt", str(tmp_path / "pretrained.pt")]
+    assert [c.separator for c in sweeps_asked[0].conditions] == ["/elsewhere/own.pt", str(tmp_path / "pretrained.pt")]
     cli.sweep_main(["--out", str(tmp_path)], script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
                    conditions=conditions)
-    assert [c.separator for c in seen[1].conditions] == ["/elsewhere/own.pt", ""]  # the shipped one
+    assert [c.separator for c in sweeps_asked[1].conditions] == ["/elsewhere/own.pt", ""]  # the shipped one
 
 
-def test_the_policy_checkpoint_flag_reaches_every_job(monkeypatch, tmp_path, folder_library):
+def test_the_policy_checkpoint_flag_reaches_every_job(sweeps_asked, tmp_path, folder_library):
     from m2h_ros.experiments import cli  # noqa: PLC0415
 
-    seen = []
-
-    def stop_at_the_sweep(sweep, **_):
-        seen.append(sweep_jobs(sweep, folder_library)[0])
-        raise ConfigError("stopped before running")
-
-    monkeypatch.setattr(cli, "run_sweep", stop_at_the_sweep)
     small = {"scene_preset": "small", "near_radius": 2.0, "max_steps": 2, "count": 2, "min_source_distance": 1.0}
     argv = ["--policy-checkpoint", str(tmp_path / "folder"), "--count", "2", "--controllers", "stand_in_place,move2hear",
             "--sound-split", "unheard", "--out", str(tmp_path)]
     assert cli.sweep_main(argv, script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
                           conditions=lambda args: [Condition(label="a", x=0, episodes=small)]) == 2
-    assert [job.controller_checkpoint for job in seen[0]] == ["", str(tmp_path / "folder")]  # learned ones only
+    assert [job.controller_checkpoint for job in sweep_jobs(sweeps_asked[0], folder_library)[0]] == ["", str(tmp_path / "folder")]  # learned ones only
     cli.sweep_main(["--count", "2", "--controllers", "stand_in_place", "--sound-split", "unheard", "--out",
                     str(tmp_path)], script="scripts/experiments/x.py", doc="x", title="x", xlabel="x",
                    conditions=lambda args: [Condition(label="a", x=0, episodes=small)])
-    assert [job.controller_checkpoint for job in seen[1]] == [""]  # the shipped policies
+    assert [job.controller_checkpoint for job in sweep_jobs(sweeps_asked[1], folder_library)[0]] == [""]  # the shipped ones
+
+
+def test_a_switch_step_sweep_sets_its_option_per_condition(sweeps_asked, tmp_path):
+    from m2h_ros.experiments import cli  # noqa: PLC0415
+
+    assert cli.switch_step_main(["--switch-steps", "0,7", "--out", str(tmp_path)], script="scripts/experiments/x.py",
+                                doc="x", option="near_switch_step", symbol="T", task="near_target", steps="0,5",
+                                reference_step=0, scene_split="val", title="x", xlabel="x") == 2
+    (sweep,) = sweeps_asked
+    assert list(sweep.controllers) == ["move2hear"] and list(sweep.tasks) == ["near_target"]
+    assert [(c.label, c.controller, c.episodes) for c in sweep.conditions] == [
+        ("T = 0", {"near_switch_step": 0}, {"scene_split": "val"}), ("T = 7", {"near_switch_step": 7}, {"scene_split": "val"})]
