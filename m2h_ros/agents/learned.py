@@ -11,7 +11,7 @@
   probability dropped, the rest renormalised), as the original's far-target composite has no Stop,
   so the episode runs to its step limit; ``navigation_stop=True`` (spec ``move2hear:stop``) keeps it.
   ``near_switch_step`` T > 0 (default 0): near-target, the approach policy walks until step T, then pi^Q
-  (``scripts/experiments/near_switch_time.py``; no T > 0 scored above pi^Q on validation, docs/policies.md).
+  (``scripts/experiments/near_switch_time.py``; session 26's near-target walkers, none shipped: docs/policies.md).
 * ``novelty`` (Sec. 5 baselines): PPO on a count-based exploration reward 1 / sqrt(n) per visited
   node, the same network as pi^Q.
 * ``av_navigator`` (Sec. 5, after Chen et al. 2020): PPO on the mixed binaural spectrogram + the
