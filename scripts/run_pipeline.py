@@ -7,8 +7,8 @@
 Builds the data the episodes need first (sound library, episode file; RIR banks of the sources are
 built by the simulator on first use), starts every node with its params file from params/ (plus the
 overrides), waits for the simulator to finish its episodes, then stops the other nodes together and
-the recorder last (SIGINT, wait, SIGKILL if one hangs) and prints the scores table and where the bag, the tables and the
-plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/.
+the recorder last (SIGINT, wait, SIGKILL if one hangs) and prints the scores table and where the bag,
+the tables and the plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@
 #               4 from stage 3's weights, 1,500 updates (480,000 env steps) on other train24 episodes (seed 1);
 #               stages 5-9 likewise from the stage before (seeds 2-6) with entropy 0.01;
 #               THREADS=1, as they ran: stage 3 took 60 min beside other trainings, stage 4 42 min beside one,
-#               stages 5-9 26-38 min each beside other jobs (about 6 h 10 min in all).
+#               stages 5-9 26-39 min each beside other jobs (about 6 h 10 min in all).
 #   approach:   the far-target composite's walking policy before T^N ("The composite Move2Hear far-target"):
 #               the original's three actions, no Stop, rewarded by the geodesic distance gained; from pi^N +
 #               Stop's stage-2 weights, 2,000 updates (640,000 env steps) on the 24 scenes of split train24,
