@@ -6,9 +6,9 @@
 
 Builds the data the episodes need first (sound library, episode file; RIR banks of the sources are
 built by the simulator on first use), starts every node with its params file from params/ (plus the
-overrides), waits for the simulator to finish its episodes, then stops the other nodes together and
-the recorder last (SIGINT, wait, SIGKILL if one hangs) and prints the scores table and where the bag,
-the tables and the plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/.
+overrides), waits for the simulator to finish its episodes, then stops the other nodes in order
+(SIGINT, wait, SIGKILL if one hangs) and prints the scores table and where the bag, the tables and the
+plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/.
 """
 
 from __future__ import annotations
@@ -30,8 +30,7 @@ from m2h_ros.errors import M2HError
 
 ROOT = Path(__file__).resolve().parents[1]
 NODES = ("recorder_node", "evaluator_node", "controller_node", "separator_node", "sim_node")  # start order
-# Stopped together, then the recorder, so that the bag holds what the others publish as they stop.
-STOP_FIRST = ("sim_node", "controller_node", "separator_node", "evaluator_node")
+STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "recorder_node")
 STOP_TIMEOUT_S = 20.0
 
 
@@ -110,16 +109,11 @@ def launcher() -> list[str]:
     raise SystemExit("run_pipeline: neither ros2run (source env.sh) nor ros2 is on PATH")
 
 
-def stop(procs: list[subprocess.Popen]) -> None:
-    """SIGINT to every running one at once, then SIGKILL to those still running after one shared
-    STOP_TIMEOUT_S (stopping them one by one, a loaded machine added up their timeouts)."""
-    running = [proc for proc in procs if proc.poll() is None]
-    for proc in running:
+def stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGINT)
-    deadline = time.monotonic() + STOP_TIMEOUT_S
-    for proc in running:
         try:
-            proc.wait(timeout=max(deadline - time.monotonic(), 0.0))
+            proc.wait(timeout=STOP_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
@@ -178,9 +172,14 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         interrupted = True
         print("[run] interrupted: stopping every node", flush=True)
+        if "sim_node" in procs:
+            stop(procs["sim_node"])
     finally:
-        stop([procs[node] for node in STOP_FIRST if node in procs])
-        stop([procs[node] for node in procs if node not in STOP_FIRST])
+        for node in STOP_ORDER:
+            if node in procs:
+                stop(procs[node])
+        if "sim_node" in procs:
+            stop(procs["sim_node"])
     elapsed = time.monotonic() - started
     failed = {n: p.returncode for n, p in procs.items() if p.returncode != 0}
     print(f"[run] finished in {elapsed:.1f} s", flush=True)

@@ -297,7 +297,7 @@ def test_sigterm_to_run_pipeline_stops_every_node(small_library, small_data_dir,
         run.send_signal(signal.SIGTERM)
         out, _ = run.communicate(timeout=60)
         assert "interrupted: stopping every node" in out
-        assert run.returncode == 130
+        assert run.returncode == 130, out
         assert not marked_nodes()
     finally:
         if run.poll() is None:
