@@ -166,7 +166,6 @@ class LearnedController(Controller):
             picks = np.minimum((probs.cumsum(axis=1) < draws[:, None]).sum(axis=1), probs.shape[1] - 1)
         return driver.actions(allow_stop=allow_stop)[picks]
 
-
     def _choose_in_groups(self, obs: ControllerObservation,
                           groups: tuple[tuple[PolicyDriver | None, np.ndarray, bool], ...]) -> np.ndarray:
         """Actions of all slots from (driver, rows, allow_stop) groups that partition them; an empty group's
@@ -176,6 +175,7 @@ class LearnedController(Controller):
             if len(rows):
                 actions[rows] = self._choose(driver, obs, rows, allow_stop=allow_stop)
         return actions
+
 
 class SinglePolicy(LearnedController):
     """A controller that is one trained policy of kind ``kind``."""

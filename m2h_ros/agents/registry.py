@@ -71,6 +71,11 @@ def _learned_spec(spec: str) -> tuple[str, dict] | None:
     return variant.name, {**variant.options, "greedy": spec.endswith(GREEDY)}
 
 
+def is_learned(name: str) -> bool:
+    """Whether ``name`` is a learned controller's spec (it takes a policy checkpoint and options)."""
+    return _learned_spec(name) is not None
+
+
 def controller_class(name: str) -> type[Controller]:
     learned = _learned_spec(name)
     target = TRAINING_FREE.get(name) or SUPERVISED.get(name) or (LEARNED[learned[0]] if learned else None)

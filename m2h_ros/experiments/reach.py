@@ -135,8 +135,10 @@ def gain_by_reach(results: Sequence[EpisodeResult], episodes: Mapping[str, Episo
     for result in results:
         if result.controller == reference:
             continue
-        key = next((k for k in ((result.episode_id, result.condition), (result.episode_id, "")) if k in final), None)
-        if key is None:
+        key = (result.episode_id, result.condition)
+        if key not in final:  # a reference played without a condition
+            key = (result.episode_id, "")
+        if key not in final:
             raise ConfigError(f"{result.controller} played {result.episode_id!r}, {reference} did not")
         group = walk_group(_trace(result, episodes))
         gains.setdefault((result.controller, result.condition, result.task, result.sound_split, group), []).append(

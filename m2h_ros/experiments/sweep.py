@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from m2h_ros import sim_world
-from m2h_ros.agents.registry import SUPERVISED, TRAINING_FREE, controller_class
+from m2h_ros.agents.registry import controller_class, is_learned
 from m2h_ros.core.plotting import agg_pyplot
 from m2h_ros.core.results import EpisodeResult, mean_ci, paired_differences, paired_table, write_results
 from m2h_ros.core.sounds.library import SoundLibrary
@@ -71,13 +71,12 @@ def sweep_jobs(sweep: Sweep, library: SoundLibrary) -> tuple[list[EvalJob], list
                 config = EpisodeConfig(**{"task": task, "scene_split": "test", "sound_split": split, **cond.episodes})
                 chosen = episodes_for(config, library)[:sweep.count]
                 for name in sweep.controllers:
-                    learned = name not in TRAINING_FREE and name not in SUPERVISED
                     env = EnvConfig(**{"camera": controller_class(name).uses_camera, **cond.env})
                     for first in range(0, len(chosen), sweep.chunk):
                         jobs.append(EvalJob(controller=name, episodes=tuple(chosen[first:first + sweep.chunk]),
                                             env=env, library=sweep.library, estimate=cond.estimate,
                                             separator=cond.separator,
-                                            controller_checkpoint=(sweep.controller_checkpoint if learned else ""),
+                                            controller_checkpoint=sweep.controller_checkpoint if is_learned(name) else "",
                                             controller_options=tuple(sorted(cond.controller.items())),
                                             condition=cond.label, seed=sweep.seed))
                         keys.append((name, task, split, index))
