@@ -9,7 +9,9 @@
   ``switch_step`` (T^N, default 80 of 100 as the original; choose it on the validation split),
   then pi^Q with a fresh GRU state (as the original's policy switch). pi^N's Stop is masked (its
   probability dropped, the rest renormalised), as the original's far-target composite has no Stop,
-  so the episode runs to its step limit; ``navigation_stop=True`` (spec ``move2hear:stop``) keeps it.
+  so the episode runs to its step limit; ``navigation_stop="ends"`` (spec ``move2hear:stop``) keeps it, and
+  ``navigation_stop="hands_over"`` (spec ``move2hear:handover``) makes pi^N's Stop the switch: pi^Q acts from
+  that step on (or from T^N, whichever comes first) and the episode runs to its step limit.
   ``near_switch_step`` T > 0 (default 0): near-target, the approach policy walks until step T, then pi^Q
   (``scripts/experiments/near_switch_time.py``; session 26's near-target walkers, none shipped: docs/policies.md).
 * ``novelty`` (Sec. 5 baselines): PPO on a count-based exploration reward 1 / sqrt(n) per visited
@@ -41,7 +43,7 @@ import numpy as np
 import torch
 
 from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
-from m2h_ros.agents.registry import CONFIRM_STOP, GREEDY, NAVIGATION_STOP
+from m2h_ros.agents.registry import CONFIRM_STOP, GREEDY, HAND_OVER, NAVIGATION_STOP
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
 from m2h_ros.core.world.episodes import STOP
 from m2h_ros.errors import CheckpointError, ConfigError
@@ -51,6 +53,10 @@ from m2h_ros.paths import PACKAGE_DIR
 
 DEFAULT_POLICY_DIR = PACKAGE_DIR / "models" / "default"
 DEFAULT_SWITCH_STEP = 80
+# What the composite does with pi^N's Stop (Move2Hear's ``navigation_stop``) -> the spec's suffix: "masked"
+# walks with the folder's approach policy (no Stop), else pi^N with its Stop masked; "ends" keeps the Stop,
+# which ends a far-target episode; "hands_over" takes it as the switch to pi^Q.
+STOP_MODES = {"masked": "", "ends": NAVIGATION_STOP, "hands_over": HAND_OVER}
 
 
 def default_policy_path(kind: str) -> Path:
@@ -243,8 +249,10 @@ class Move2Hear(LearnedController):
 
     The original's far-target composite has no Stop (its pi^N + Stop is the navigation experiment's
     policy), so the episode runs to its step limit: the folder's approach policy (trained without Stop, the
-    shipped folder has one) walks, else pi^N + Stop with its Stop masked; ``navigation_stop`` walks with
-    pi^N + Stop, Stop kept. ``near_switch_step`` > 0 lets the same walker lead near-target episodes too.
+    shipped folder has one) walks, else pi^N + Stop with its Stop masked. ``navigation_stop`` (one of
+    :data:`STOP_MODES`) walks with pi^N + Stop instead, its Stop ending the episode ("ends") or handing over
+    to pi^Q at that step ("hands_over"). ``near_switch_step`` > 0 lets the same walker lead near-target
+    episodes too.
     """
 
     name = "move2hear"
@@ -253,16 +261,17 @@ class Move2Hear(LearnedController):
 
     def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False,
                  switch_step: int = DEFAULT_SWITCH_STEP, near_switch_step: int = 0,
-                 navigation_stop: bool = False) -> None:
+                 navigation_stop: str = "masked") -> None:
         for name, value in (("switch_step", switch_step), ("near_switch_step", near_switch_step)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise ConfigError(f"{name}={value!r} must be a non-negative int")
-        if not isinstance(navigation_stop, bool):
-            raise ConfigError(f"navigation_stop={navigation_stop!r} must be a bool")
+        if navigation_stop not in STOP_MODES:
+            raise ConfigError(f"navigation_stop={navigation_stop!r} must be one of {', '.join(STOP_MODES)}")
         self.switch_step = int(switch_step)
         self.near_switch_step = int(near_switch_step)
         self.navigation_stop = navigation_stop
         self.far = np.zeros(n_slots, bool)
+        self.handed_over = np.zeros(n_slots, bool)  # navigation_stop="hands_over": pi^N stopped, pi^Q acts
         super().__init__(n_slots, seed=seed, checkpoint=checkpoint, greedy=greedy)
 
     def _drivers(self, checkpoint: str) -> list[PolicyDriver]:
@@ -275,21 +284,22 @@ class Move2Hear(LearnedController):
         return [self.quality]
 
     def _variant(self) -> str:
-        return NAVIGATION_STOP if self.navigation_stop else ""
+        return STOP_MODES[self.navigation_stop]
 
     def _load(self, kind: str) -> PolicyDriver:
         return PolicyDriver(load_learned(kind, self.folder / f"policy_{kind}.pt"), self.n_slots)
 
     def _navigation_kind(self) -> str:
         """The far-target policy before T^N: the folder's ``policy_approach.pt`` (trained without Stop, as the
-        original's composite policy) where it has one, else pi^N + Stop with its Stop masked; ``navigation_stop``
-        needs pi^N + Stop."""
-        if not self.navigation_stop and (self.folder / "policy_approach.pt").is_file():
+        original's composite policy) where it has one, else pi^N + Stop with its Stop masked; the other
+        ``navigation_stop`` modes need pi^N + Stop."""
+        if self.navigation_stop == "masked" and (self.folder / "policy_approach.pt").is_file():
             return "approach"
         return "navigation"
 
     def reset(self, slot: int, start: EpisodeStart) -> None:
         self.far[slot] = start.task == "far_target"
+        self.handed_over[slot] = False
         if (self.far[slot] or self.near_switch_step) and self.navigation is None:
             # Near-target runs need pi^Q only (unless near_switch_step); the walker and its file only when needed.
             self.navigation = self._load(self._navigation_kind())
@@ -298,7 +308,17 @@ class Move2Hear(LearnedController):
 
     def _act(self, obs: ControllerObservation) -> np.ndarray:
         # pi^Q's GRU state starts fresh when it first acts (reset() marks it): at the switch step (near-target
-        # near_switch_step, default 0; far-target switch_step).
-        navigating = obs.step < np.where(self.far, self.switch_step, self.near_switch_step)
-        return self._choose_in_groups(obs, ((self.navigation, np.flatnonzero(navigating), self.navigation_stop),
-                                            (self.quality, np.flatnonzero(~navigating), True)))
+        # near_switch_step, default 0; far-target switch_step) or, handing over, at pi^N's Stop.
+        navigating = (obs.step < np.where(self.far, self.switch_step, self.near_switch_step)) & ~self.handed_over
+        walking = np.flatnonzero(navigating)
+        actions = np.empty(self.n_slots, np.int64)
+        if len(walking):
+            actions[walking] = self._choose(self.navigation, obs, walking,
+                                            allow_stop=self.navigation_stop != "masked")
+        if self.navigation_stop == "hands_over":
+            stopped = walking[actions[walking] == STOP]
+            self.handed_over[stopped], navigating[stopped] = True, False
+        improving = np.flatnonzero(~navigating)
+        if len(improving):
+            actions[improving] = self._choose(self.quality, obs, improving)
+        return actions

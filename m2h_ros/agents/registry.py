@@ -43,14 +43,18 @@ class Variant:
 
 
 # "move2hear:stop" is the composite with pi^N's Stop kept (a far-target episode ends when pi^N stops);
-# plain "move2hear" masks it, as the original's far-target composite has no Stop (docs/policies.md).
+# "move2hear:handover" walks with pi^N + Stop and takes its Stop as the switch to pi^Q; plain "move2hear"
+# walks with the approach policy, as the original's far-target composite has no Stop (docs/policies.md).
 NAVIGATION_STOP = ":stop"
+HAND_OVER = ":handover"
 # "move2hear_navigation:confirm": pi^N + Stop whose Stop needs the supervised Stop predictor's agreement
 # (Gan et al.'s sound locator, p >= 0.5; chosen on the validation split, docs/policies.md).
 CONFIRM_STOP = ":confirm"
 LEARNED_VARIANTS = {
-    "move2hear" + NAVIGATION_STOP: Variant("move2hear", {"navigation_stop": True},
+    "move2hear" + NAVIGATION_STOP: Variant("move2hear", {"navigation_stop": "ends"},
                                            "Move2Hear with pi^N's Stop kept: a far-target episode ends when pi^N stops"),
+    "move2hear" + HAND_OVER: Variant("move2hear", {"navigation_stop": "hands_over"},
+                                     "Move2Hear walking with pi^N + Stop, its Stop the switch to pi^Q (or T^N)"),
     "move2hear_navigation" + CONFIRM_STOP: Variant(
         "move2hear_navigation", {"confirm_stop": 0.5},
         "pi^N + Stop, its Stop taken only where Gan et al.'s supervised Stop predictor agrees (p >= 0.5)"),

@@ -13,7 +13,9 @@ One update (CleanRL-style, hyperparameters in :class:`PPOConfig`):
 2. Rewards by kind: ``quality`` (Move2Hear pi^Q) the improvement of the refined estimate's quality
    measure (``quality_reward``), plus ``final_weight`` x the measure at the episode's last step (the
    original code's formulation; it adds that term one step early because Habitat's auto-reset hides
-   the last observation, here it lands on the last step itself). ``nmse`` (default, the original's):
+   the last observation, here it lands on the last step itself), plus ``navigation_coef`` x the env's
+   navigation reward (0.25 per metre of geodesic distance gained, -0.01 a step: a mixed reward that pays
+   for approaching the target beside hearing it better). ``nmse`` (default, the original's):
    NMSE_t - NMSE_{t+1} against the ground-truth monaural magnitude (NMSE = mean squared error / mean
    squared target), -10 x NMSE last; ``snr``: SNR_{t+1} - SNR_t in dB (SNR = -10 log10 NMSE),
    +10 x SNR dB last; ``si_sdr``: SI-SDR_{t+1} - SI-SDR_t in dB of the waveform rebuilt with the
@@ -174,6 +176,7 @@ class PPOConfig:
     refiner_epochs: int = 4  # passes of f^R's L1 over each rollout (the original: ppo_epoch)
     quality_reward: str = "nmse"  # quality: the measure whose improvement is the reward (QUALITY_REWARDS)
     final_weight: float = 10.0  # quality: + weight x the measure at the last step (-weight x NMSE for nmse)
+    navigation_coef: float = 0.0  # quality: + weight x the env's navigation reward (per metre gained); 0: none
     teacher_coef: float = 0.0  # kickstarting: weight of the approach teacher's cross-entropy (decays with lr); 0: none
     location_coef: float = 0.0  # weight of the auxiliary target-location loss (training.location); 0: none
     init_policy: str = ""  # policy checkpoint whose weights the run starts from (models.policy.warm_start); "": random
@@ -213,7 +216,8 @@ class PPOConfig:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a float in (0, 1]")
         if self.quality_reward not in QUALITY_REWARDS:
             raise ConfigError(f"PPOConfig.quality_reward={self.quality_reward!r} must be one of {QUALITY_REWARDS}")
-        for name in ("action_coef", "value_coef", "max_grad_norm", "final_weight", "teacher_coef", "location_coef"):
+        for name in ("action_coef", "value_coef", "max_grad_norm", "final_weight", "navigation_coef", "teacher_coef",
+                     "location_coef"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
                 raise ConfigError(f"PPOConfig.{name}={value!r} must be a number >= 0")
@@ -356,7 +360,7 @@ class _StepReward:
 
     ended: np.ndarray  # slots whose episode the step ended
     success: np.ndarray | None  # (N,) with the step's final_info when an episode ended
-    reward: np.ndarray | None = None
+    reward: np.ndarray | None = None  # quality: the part added to the quality reward (navigation_coef), if any
     quality: PendingQuality | None = None
 
 
@@ -545,11 +549,14 @@ class PPOTrainer:
         if final is not None:
             refined[ended] = final.refined
         pending = self.quality.submit(refined, ended, separation.refined[ended], info["target_monaural"][ended])
-        return _StepReward(ended, success, quality=pending)
+        navigation = self.config.navigation_coef * env_reward.astype(np.float64) if self.config.navigation_coef else None
+        return _StepReward(ended, success, reward=navigation, quality=pending)
 
     def _settle(self, step: _StepReward, rollout: _Rollout, finished: list[dict[str, float]]) -> None:
         """Account a step's reward (in step order): the rollout's rewards, returns, finished episodes."""
         reward = step.reward if step.quality is None else self.quality.settle(step.quality)
+        if step.quality is not None and step.reward is not None:
+            reward = reward + step.reward
         self.returns += reward
         self.lengths += 1
         for slot in step.ended.tolist():
@@ -865,6 +872,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="quality: the measure whose improvement is the reward (nmse: the original's)")
     parser.add_argument("--final-weight", type=float, default=PPOConfig.final_weight,
                         help="quality: weight of the measure at the last step (0: the reward is the improvement alone)")
+    parser.add_argument("--navigation-coef", type=float, default=PPOConfig.navigation_coef,
+                        help="quality: add this weight x the env's navigation reward (0.25 per metre gained toward "
+                             "the target, -0.01 a step; 0: quality alone)")
     parser.add_argument("--lr", type=float, default=PPOConfig.lr, help="Adam learning rate (the seed's 1e-4)")
     parser.add_argument("--teacher-coef", type=float, default=PPOConfig.teacher_coef,
                         help="kickstart with the approach teacher (m2h_ros/training/teacher.py): weight of its "
@@ -900,7 +910,8 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
                      env=KINDS[args.kind].env(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
-                     final_weight=args.final_weight, lr=args.lr, teacher_coef=args.teacher_coef, init_policy=args.init_policy,
+                     final_weight=args.final_weight, navigation_coef=args.navigation_coef, lr=args.lr,
+                     teacher_coef=args.teacher_coef, init_policy=args.init_policy,
                      location_coef=args.location_coef, frozen_policy=args.frozen_policy,
                      teacher_slots=args.teacher_slots,
                      entropy_coef=args.entropy_coef, seed=args.seed,

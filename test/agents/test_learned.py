@@ -101,7 +101,7 @@ def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_pat
     saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
     controller = make_controller("move2hear:stop", 2, checkpoint=str(tmp_path))  # pi^N's Stop kept
     assert isinstance(controller, learned.Move2Hear) and controller.switch_step == 80
-    assert controller.navigation_stop and controller.name == "move2hear:stop"
+    assert controller.navigation_stop == "ends" and controller.name == "move2hear:stop"
     controller.reset(0, start("far_target"))
     controller.reset(1, start("near_target"))
     for step, expected in ((0, [STOP, TURN_LEFT]), (79, [STOP, TURN_LEFT]), (80, [TURN_LEFT, TURN_LEFT])):
@@ -124,7 +124,7 @@ def test_composite_masks_pi_n_stop_unless_asked_sampled_and_greedy(tmp_path):
     saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
     for spec in ("move2hear", "move2hear:greedy"):
         controller = make_controller(spec, 2, seed=3, checkpoint=str(tmp_path))
-        assert not controller.navigation_stop and controller.name == spec
+        assert controller.navigation_stop == "masked" and controller.name == spec
         controller.reset(0, start("far_target", seed=1))
         controller.reset(1, start("near_target", seed=2))
         actions = np.array([controller.act(observation(2, step, seed=step)) for step in range(100)])
@@ -133,18 +133,37 @@ def test_composite_masks_pi_n_stop_unless_asked_sampled_and_greedy(tmp_path):
         if spec == "move2hear":  # renormalised over the other three, near-uniform: each one is drawn
             assert set(actions[:80, 0]) == {MOVE_FORWARD, TURN_LEFT, TURN_RIGHT}
     greedy_stop = make_controller("move2hear:stop:greedy", 1, checkpoint=str(tmp_path))
-    assert greedy_stop.navigation_stop and greedy_stop.greedy and greedy_stop.name == "move2hear:stop:greedy"
+    assert greedy_stop.navigation_stop == "ends" and greedy_stop.greedy and greedy_stop.name == "move2hear:stop:greedy"
     greedy_stop.reset(0, start("far_target"))
     assert greedy_stop.act(observation(1)).tolist() == [STOP]
     with pytest.raises(ConfigError, match="'move2hear:stop' sets navigation_stop itself"):
-        make_controller("move2hear:stop", 1, checkpoint=str(tmp_path), navigation_stop=False)
-    with pytest.raises(ConfigError, match="navigation_stop=1 must be a bool"):
-        make_controller("move2hear", 1, checkpoint=str(tmp_path), navigation_stop=1)
+        make_controller("move2hear:stop", 1, checkpoint=str(tmp_path), navigation_stop="masked")
+    with pytest.raises(ConfigError, match="navigation_stop=True must be one of masked, ends, hands_over"):
+        make_controller("move2hear", 1, checkpoint=str(tmp_path), navigation_stop=True)
     with pytest.raises(ConfigError, match="unknown controller 'move2hear_navigation:stop'"):
         make_controller("move2hear_navigation:stop", 1)
     with pytest.raises(ConfigError, match="'move2hear_navigation': .*navigation_stop"):
         make_controller("move2hear_navigation", 1, checkpoint=str(tmp_path / "policy_navigation.pt"),
-                        navigation_stop=True)
+                        navigation_stop="ends")
+
+
+def test_composite_hands_over_to_pi_q_at_pi_n_stop(tmp_path):
+    saved(tmp_path / "policy_navigation.pt", NAVIGATION, "navigation", seed=2)  # Stop drawn now and then
+    saved(tmp_path / "policy_approach.pt", SMALL, "approach", favour=2)  # not used: hands_over needs pi^N + Stop
+    saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
+    controller = make_controller("move2hear:handover", 3, seed=1, checkpoint=str(tmp_path), switch_step=30)
+    assert controller.navigation_stop == "hands_over" and controller.name == "move2hear:handover"
+    for slot in range(3):
+        controller.reset(slot, start("far_target", seed=slot))
+    actions = np.array([controller.act(observation(3, step, seed=step)) for step in range(40)])
+    assert STOP not in actions  # the episode runs on: pi^Q acts at the step pi^N stopped
+    assert controller.model_files()[1] == tmp_path / "policy_navigation.pt" and controller.handed_over.all()
+    for slot in range(3):  # each slot walks as pi^N + Stop (same seeds) until that one stops, then pi^Q only
+        ends = make_controller("move2hear:stop", 1, seed=1, checkpoint=str(tmp_path), switch_step=30)
+        ends.reset(0, start("far_target", seed=slot))
+        walk = [int(ends.act(observation(3, step, seed=step).rows(np.array([slot])))[0]) for step in range(30)]
+        stop = walk.index(STOP)  # within 30 steps: p(Stop) is about 1/4
+        assert actions[:stop, slot].tolist() == walk[:stop] and set(actions[stop:, slot]) == {TURN_LEFT}
 
 
 def test_masked_probabilities_are_the_others_renormalised(tmp_path):
