@@ -16,7 +16,8 @@ same actions and scores, or the same final scores to the CSV's 6 decimals where 
 the reference evaluated beside each). Where they differ (say, two policy checkpoints behind one name),
 ``--tags`` names each file's run: that controller becomes ``<controller>:<tag>`` per file; without tags
 it is an error. Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a
-reference).
+reference). A sweep's episodes (``scripts/experiments/*``: a ``condition`` each) count as one controller per
+condition, ``<controller>[<condition>]`` (e.g. ``move2hear[T = 20]``), tagged after it.
 ``--png`` draws the differences as a forest plot (one panel per reference and task, each controller's
 mean and 95% CI per sound split).
 """
@@ -49,6 +50,10 @@ def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
     if tags and len(tags) != len(paths):
         raise ConfigError(f"--tags names {len(tags)} runs for {len(paths)} results files")
     runs = [read_final_scores(path) if path.suffix == ".csv" else read_results(path) for path in paths]
+    for run in runs:
+        for result in run:
+            if result.condition:  # a sweep's conditions are its controllers here
+                result.controller = f"{result.controller}[{result.condition}]"
     if tags:
         differing = _differing(runs)
         for tag, run in zip(tags, runs, strict=True):

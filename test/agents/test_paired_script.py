@@ -103,3 +103,16 @@ def test_a_committed_csv_pairs_as_its_json_does(paired, tmp_path, capsys):
     other = write_results(run("doa", {"a": 1.0, "b": 3.0}), tmp_path / "other", plot=False)["json"]
     assert paired.main([str(written["csv"]), str(other), "--reference", "doa"]) == 2  # another run of doa
     assert f"doa played episode a differently in {written['csv']} and {other}" in capsys.readouterr().err
+
+
+def test_a_sweeps_conditions_pair_as_controllers_of_their_own(paired, tmp_path, capsys):
+    sweep = run("move2hear", {"a": 1.0, "b": 2.0}) + run("move2hear", {"a": 3.0, "b": 5.0})
+    for result, condition in zip(sweep, ("T = 0", "T = 0", "T = 20", "T = 20"), strict=True):
+        result.condition = condition
+    swept = write_results(sweep, tmp_path / "sweep", plot=False)["csv"]
+    plain = write_results(run("move2hear", {"a": 2.0, "b": 2.0}), tmp_path / "plain", plot=False)["json"]
+    assert paired.main([str(swept), str(plain), "--tags", "sweep,plain", "--reference", "move2hear[T = 20]"]) == 0
+    out = capsys.readouterr().out
+    assert "minus move2hear[T = 20]'s" in out
+    assert "| move2hear[T = 0] | near_target | heard | 2 | -2.50 ± 6.35 |" in out
+    assert "| move2hear | near_target | heard | 2 | -2.00 ± 12.71 |" in out  # the plain run: (-1, -3)
