@@ -5,13 +5,16 @@
 * ``move2hear_navigation`` (pi^N + Stop, Sec. 4 far-target): navigates to the target and stops,
   on the navigation reward. Four actions. ``move2hear_navigation:confirm`` takes its Stop only where the
   supervised Stop predictor of Gan et al.'s sound locator agrees (p >= 0.5 of standing on the target).
-* ``move2hear`` (the paper's Move2Hear): near-target pi^Q throughout; far-target pi^N until step
-  ``switch_step`` (T^N, default 80 of 100 as the original; choose it on the validation split),
-  then pi^Q with a fresh GRU state (as the original's policy switch). pi^N's Stop is masked (its
-  probability dropped, the rest renormalised), as the original's far-target composite has no Stop,
-  so the episode runs to its step limit; ``navigation_stop="ends"`` (spec ``move2hear:stop``) keeps it, and
-  ``navigation_stop="hands_over"`` (spec ``move2hear:handover``) makes pi^N's Stop the switch: pi^Q acts from
-  that step on (or from T^N, whichever comes first) and the episode runs to its step limit.
+* ``move2hear`` (the paper's Move2Hear): near-target pi^Q throughout; far-target a walker until step
+  ``switch_step`` (T^N, chosen on the validation split), then pi^Q with a fresh GRU state (as the
+  original's policy switch). ``navigation_stop`` says what walks and what its Stop does (:data:`STOP_MODES`):
+  ``"ends"`` (default since session 27): pi^N + Stop, whose Stop ends the episode, T^N = 100 (no switch:
+  on 400 validation episodes per split pi^Q after T^N = 80 did not add, docs/policies.md);
+  ``"masked"`` (spec ``move2hear:approach``, the default until session 26): the folder's approach policy
+  (no Stop, as the original's far-target composite policy), else pi^N with its Stop masked (its
+  probability dropped, the rest renormalised), T^N = 80, so the episode runs to its step limit;
+  ``"hands_over"`` (spec ``move2hear:handover``): pi^N + Stop, its Stop the switch to pi^Q (or T^N = 80,
+  whichever comes first), the episode runs to its step limit. ``move2hear:stop`` is ``"ends"`` with T^N = 80.
   ``near_switch_step`` T > 0 (default 0): near-target, the approach policy walks until step T, then pi^Q
   (``scripts/experiments/near_switch_time.py``; session 26's near-target walkers, none shipped: docs/policies.md).
 * ``novelty`` (Sec. 5 baselines): PPO on a count-based exploration reward 1 / sqrt(n) per visited
@@ -43,7 +46,7 @@ import numpy as np
 import torch
 
 from m2h_ros.agents.base import Controller, ControllerObservation, EpisodeStart
-from m2h_ros.agents.registry import CONFIRM_STOP, GREEDY, HAND_OVER, NAVIGATION_STOP
+from m2h_ros.agents.registry import GREEDY
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES
 from m2h_ros.core.world.episodes import STOP
 from m2h_ros.errors import CheckpointError, ConfigError
@@ -52,11 +55,13 @@ from m2h_ros.models.policy import LoadedPolicy, load_policy, policy_inputs
 from m2h_ros.paths import PACKAGE_DIR
 
 DEFAULT_POLICY_DIR = PACKAGE_DIR / "models" / "default"
-DEFAULT_SWITCH_STEP = 80
-# What the composite does with pi^N's Stop (Move2Hear's ``navigation_stop``) -> the spec's suffix: "masked"
-# walks with the folder's approach policy (no Stop), else pi^N with its Stop masked; "ends" keeps the Stop,
-# which ends a far-target episode; "hands_over" takes it as the switch to pi^Q.
-STOP_MODES = {"masked": "", "ends": NAVIGATION_STOP, "hands_over": HAND_OVER}
+# What walks before T^N and what its Stop does (Move2Hear's ``navigation_stop``) -> the default T^N, each chosen
+# on the validation split (docs/policies.md): "ends" pi^N + Stop, the Stop ends a far-target episode (T^N = 100:
+# pi^Q never takes over, session 27); "masked" the folder's approach policy (no Stop), else pi^N with its Stop
+# masked (T^N = 80, the original's, re-checked in session 23); "hands_over" pi^N + Stop, its Stop the switch to
+# pi^Q (T^N = 80, not swept).
+DEFAULT_SWITCH_STEPS = {"ends": 100, "masked": 80, "hands_over": 80}
+STOP_MODES = tuple(DEFAULT_SWITCH_STEPS)
 
 
 def default_policy_path(kind: str) -> Path:
@@ -135,8 +140,8 @@ class LearnedController(Controller):
         if not isinstance(greedy, bool):
             raise ConfigError(f"greedy={greedy!r} must be a bool")
         self.greedy = greedy
-        # The registry's spec: results say which variant and mode ran.
-        self.name = type(self).name + self._variant() + (GREEDY if greedy else "")
+        # make_controller names it by the registry's whole spec (variant and mode): what results say ran.
+        self.name = type(self).name + (GREEDY if greedy else "")
         self.target_class = np.zeros(self.n_slots, np.int64)
         self.drivers = self._drivers(checkpoint)
         self.uses_camera = any(d.loaded.config.camera for d in self.drivers)
@@ -147,10 +152,6 @@ class LearnedController(Controller):
     @abstractmethod
     def _drivers(self, checkpoint: str) -> list[PolicyDriver]:
         """Load the policies this controller runs."""
-
-    def _variant(self) -> str:
-        """The registry spec's suffix of this instance's options (before ``:greedy``)."""
-        return ""
 
     def reset(self, slot: int, start: EpisodeStart) -> None:
         super().reset(slot, start)
@@ -217,9 +218,6 @@ class Move2HearNavigation(SinglePolicy):
         self.locator = load_locator() if self.confirm_stop else None
         super().__init__(n_slots, seed=seed, checkpoint=checkpoint, greedy=greedy)
 
-    def _variant(self) -> str:
-        return CONFIRM_STOP if self.confirm_stop else ""
-
     def model_files(self) -> list[Path]:
         return super().model_files() + ([self.locator.path] if self.locator else [])
 
@@ -244,29 +242,29 @@ class AVNavigator(SinglePolicy):
 
 
 class Move2Hear(LearnedController):
-    """The paper's Move2Hear: pi^Q near-target; far-target a navigation policy until step ``switch_step``,
-    then pi^Q.
+    """The paper's Move2Hear: pi^Q near-target; far-target a walker until step ``switch_step`` (T^N), then pi^Q.
 
-    The original's far-target composite has no Stop (its pi^N + Stop is the navigation experiment's
-    policy), so the episode runs to its step limit: the folder's approach policy (trained without Stop, the
-    shipped folder has one) walks, else pi^N + Stop with its Stop masked. ``navigation_stop`` (one of
-    :data:`STOP_MODES`) walks with pi^N + Stop instead, its Stop ending the episode ("ends") or handing over
-    to pi^Q at that step ("hands_over"). ``near_switch_step`` > 0 lets the same walker lead near-target
-    episodes too.
+    ``navigation_stop`` (one of :data:`STOP_MODES`) picks the walker and what its Stop does: "ends" (default)
+    pi^N + Stop, the Stop ending the episode; "masked" the folder's approach policy (trained without Stop, as
+    the original's composite policy; the shipped folder has one), else pi^N + Stop with its Stop masked, so the
+    episode runs to its step limit; "hands_over" pi^N + Stop, its Stop the switch to pi^Q. ``switch_step``
+    None: the mode's validated T^N (:data:`DEFAULT_SWITCH_STEPS`). ``near_switch_step`` > 0 lets the same
+    walker lead near-target episodes too.
     """
 
     name = "move2hear"
-    summary = ("Move2Hear: pi^Q near-target; far-target an approach policy (no Stop) until step T^N, then pi^Q "
-               "(paper Sec. 4)")
+    summary = ("Move2Hear: pi^Q near-target; far-target pi^N + Stop (T^N = 100: no switch to pi^Q, chosen on "
+               "validation) (paper Sec. 4)")
 
     def __init__(self, n_slots: int, *, seed: int = 0, checkpoint: str = "", greedy: bool = False,
-                 switch_step: int = DEFAULT_SWITCH_STEP, near_switch_step: int = 0,
-                 navigation_stop: str = "masked") -> None:
+                 switch_step: int | None = None, near_switch_step: int = 0, navigation_stop: str = "ends") -> None:
+        if navigation_stop not in STOP_MODES:
+            raise ConfigError(f"navigation_stop={navigation_stop!r} must be one of {', '.join(STOP_MODES)}")
+        if switch_step is None:
+            switch_step = DEFAULT_SWITCH_STEPS[navigation_stop]
         for name, value in (("switch_step", switch_step), ("near_switch_step", near_switch_step)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise ConfigError(f"{name}={value!r} must be a non-negative int")
-        if navigation_stop not in STOP_MODES:
-            raise ConfigError(f"navigation_stop={navigation_stop!r} must be one of {', '.join(STOP_MODES)}")
         self.switch_step = int(switch_step)
         self.near_switch_step = int(near_switch_step)
         self.navigation_stop = navigation_stop
@@ -282,9 +280,6 @@ class Move2Hear(LearnedController):
         self.quality = self._load("quality")
         self.navigation: PolicyDriver | None = None  # loaded at the first far-target episode
         return [self.quality]
-
-    def _variant(self) -> str:
-        return STOP_MODES[self.navigation_stop]
 
     def _load(self, kind: str) -> PolicyDriver:
         return PolicyDriver(load_learned(kind, self.folder / f"policy_{kind}.pt"), self.n_slots)

@@ -42,17 +42,22 @@ class Variant:
     summary: str
 
 
-# "move2hear:stop" is the composite with pi^N's Stop kept (a far-target episode ends when pi^N stops);
-# "move2hear:handover" walks with pi^N + Stop and takes its Stop as the switch to pi^Q; plain "move2hear"
-# walks with the approach policy, as the original's far-target composite has no Stop (docs/policies.md).
+# Plain "move2hear" walks far-target with pi^N + Stop, whose Stop ends the episode, to step 100 (T^N chosen on
+# validation, session 27). "move2hear:approach" is the composite as the original trains it (an approach policy
+# without Stop, pi^Q from T^N = 80: the default until session 26); "move2hear:stop" pi^N + Stop until T^N = 80,
+# then pi^Q; "move2hear:handover" pi^N + Stop whose Stop is the switch to pi^Q (docs/policies.md).
+APPROACH = ":approach"
 NAVIGATION_STOP = ":stop"
 HAND_OVER = ":handover"
 # "move2hear_navigation:confirm": pi^N + Stop whose Stop needs the supervised Stop predictor's agreement
 # (Gan et al.'s sound locator, p >= 0.5; chosen on the validation split, docs/policies.md).
 CONFIRM_STOP = ":confirm"
 LEARNED_VARIANTS = {
-    "move2hear" + NAVIGATION_STOP: Variant("move2hear", {"navigation_stop": "ends"},
-                                           "Move2Hear with pi^N's Stop kept: a far-target episode ends when pi^N stops"),
+    "move2hear" + APPROACH: Variant("move2hear", {"navigation_stop": "masked"},
+                                    "Move2Hear walking far-target with the approach policy (no Stop), then pi^Q "
+                                    "from T^N = 80 (the original's composite)"),
+    "move2hear" + NAVIGATION_STOP: Variant("move2hear", {"navigation_stop": "ends", "switch_step": 80},
+                                           "Move2Hear walking with pi^N + Stop until T^N = 80, then pi^Q"),
     "move2hear" + HAND_OVER: Variant("move2hear", {"navigation_stop": "hands_over"},
                                      "Move2Hear walking with pi^N + Stop, its Stop the switch to pi^Q (or T^N)"),
     "move2hear_navigation" + CONFIRM_STOP: Variant(
@@ -92,7 +97,7 @@ def controller_class(name: str) -> type[Controller]:
 def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str = "", **options) -> Controller:
     """A controller of ``n_slots`` slots; ``checkpoint`` and ``options`` (e.g. move2hear's
     ``switch_step`` and ``navigation_stop``, gan_et_al's ``replan_every``) are for learned and
-    supervised controllers only; a spec's own options (``:greedy``, ``:stop``) cannot be passed again."""
+    supervised controllers only; a spec's own options (``:greedy``, ``:stop``'s switch_step) cannot be passed again."""
     cls = controller_class(name)
     if name in TRAINING_FREE:
         if checkpoint or options:
@@ -105,6 +110,9 @@ def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str =
             raise ConfigError(f"controller {name!r} sets {', '.join(clash)} itself; do not pass it as an option")
         options = {**options, **learned[1]}
     try:
-        return cls(n_slots, seed=seed, checkpoint=checkpoint, **options)
+        controller = cls(n_slots, seed=seed, checkpoint=checkpoint, **options)
     except TypeError as error:  # an option the class does not take
         raise ConfigError(f"controller {name!r}: {error}") from error
+    if learned:
+        controller.name = name  # the whole spec (variant, :greedy): what results say ran
+    return controller

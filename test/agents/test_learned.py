@@ -99,14 +99,20 @@ NAVIGATION = PolicyConfig(**{**SMALL.to_dict(), "stop": True})
 def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_path):
     saved(tmp_path / "policy_navigation.pt", NAVIGATION, "navigation", favour=0)  # always STOP
     saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
-    controller = make_controller("move2hear:stop", 2, checkpoint=str(tmp_path))  # pi^N's Stop kept
+    controller = make_controller("move2hear:stop", 2, checkpoint=str(tmp_path))  # pi^N's Stop kept, T^N = 80
     assert isinstance(controller, learned.Move2Hear) and controller.switch_step == 80
     assert controller.navigation_stop == "ends" and controller.name == "move2hear:stop"
     controller.reset(0, start("far_target"))
     controller.reset(1, start("near_target"))
     for step, expected in ((0, [STOP, TURN_LEFT]), (79, [STOP, TURN_LEFT]), (80, [TURN_LEFT, TURN_LEFT])):
         np.testing.assert_array_equal(controller.act(observation(2, step)), expected)
-    early = make_controller("move2hear:stop", 1, checkpoint=str(tmp_path), switch_step=3)
+    default = make_controller("move2hear", 1, checkpoint=str(tmp_path))  # the same walker, no switch in 100 steps
+    assert (default.navigation_stop, default.switch_step, default.name) == ("ends", 100, "move2hear")
+    default.reset(0, start("far_target"))
+    assert {int(default.act(observation(1, s))[0]) for s in (0, 80, 99)} == {STOP}
+    with pytest.raises(ConfigError, match="'move2hear:stop' sets switch_step itself"):
+        make_controller("move2hear:stop", 1, checkpoint=str(tmp_path), switch_step=3)
+    early = make_controller("move2hear", 1, checkpoint=str(tmp_path), switch_step=3)
     early.reset(0, start("far_target"))
     assert [int(early.act(observation(1, s))[0]) for s in range(5)] == [STOP] * 3 + [TURN_LEFT] * 2
     with pytest.raises(CheckpointError, match="directory"):
@@ -122,23 +128,23 @@ def test_composite_navigates_until_the_switch_step_then_improves_quality(tmp_pat
 def test_composite_masks_pi_n_stop_unless_asked_sampled_and_greedy(tmp_path):
     saved(tmp_path / "policy_navigation.pt", NAVIGATION, "navigation", favour=0)  # STOP's probability ~1
     saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
-    for spec in ("move2hear", "move2hear:greedy"):
+    for spec in ("move2hear:approach", "move2hear:approach:greedy"):  # no approach policy in the folder
         controller = make_controller(spec, 2, seed=3, checkpoint=str(tmp_path))
-        assert controller.navigation_stop == "masked" and controller.name == spec
+        assert controller.navigation_stop == "masked" and controller.name == spec and controller.switch_step == 80
         controller.reset(0, start("far_target", seed=1))
         controller.reset(1, start("near_target", seed=2))
         actions = np.array([controller.act(observation(2, step, seed=step)) for step in range(100)])
         assert STOP not in actions[:, 0] and set(actions[80:, 0]) == {TURN_LEFT}  # pi^Q after T^N
         assert set(actions[:, 1]) == {TURN_LEFT}  # near-target: pi^Q throughout, as before
-        if spec == "move2hear":  # renormalised over the other three, near-uniform: each one is drawn
+        if spec == "move2hear:approach":  # renormalised over the other three, near-uniform: each one is drawn
             assert set(actions[:80, 0]) == {MOVE_FORWARD, TURN_LEFT, TURN_RIGHT}
     greedy_stop = make_controller("move2hear:stop:greedy", 1, checkpoint=str(tmp_path))
     assert greedy_stop.navigation_stop == "ends" and greedy_stop.greedy and greedy_stop.name == "move2hear:stop:greedy"
     greedy_stop.reset(0, start("far_target"))
     assert greedy_stop.act(observation(1)).tolist() == [STOP]
-    with pytest.raises(ConfigError, match="'move2hear:stop' sets navigation_stop itself"):
-        make_controller("move2hear:stop", 1, checkpoint=str(tmp_path), navigation_stop="masked")
-    with pytest.raises(ConfigError, match="navigation_stop=True must be one of masked, ends, hands_over"):
+    with pytest.raises(ConfigError, match="'move2hear:approach' sets navigation_stop itself"):
+        make_controller("move2hear:approach", 1, checkpoint=str(tmp_path), navigation_stop="ends")
+    with pytest.raises(ConfigError, match="navigation_stop=True must be one of ends, masked, hands_over"):
         make_controller("move2hear", 1, checkpoint=str(tmp_path), navigation_stop=True)
     with pytest.raises(ConfigError, match="unknown controller 'move2hear_navigation:stop'"):
         make_controller("move2hear_navigation:stop", 1)
@@ -159,7 +165,7 @@ def test_composite_hands_over_to_pi_q_at_pi_n_stop(tmp_path):
     assert STOP not in actions  # the episode runs on: pi^Q acts at the step pi^N stopped
     assert controller.model_files()[1] == tmp_path / "policy_navigation.pt" and controller.handed_over.all()
     for slot in range(3):  # each slot walks as pi^N + Stop (same seeds) until that one stops, then pi^Q only
-        ends = make_controller("move2hear:stop", 1, seed=1, checkpoint=str(tmp_path), switch_step=30)
+        ends = make_controller("move2hear", 1, seed=1, checkpoint=str(tmp_path), switch_step=30)
         ends.reset(0, start("far_target", seed=slot))
         walk = [int(ends.act(observation(3, step, seed=step).rows(np.array([slot])))[0]) for step in range(30)]
         stop = walk.index(STOP)  # within 30 steps: p(Stop) is about 1/4
@@ -195,22 +201,22 @@ def test_composite_walks_with_an_approach_policy_where_the_folder_has_one(tmp_pa
     saved(tmp_path / "policy_navigation.pt", NAVIGATION, "navigation", favour=0)  # always STOP
     saved(tmp_path / "policy_approach.pt", SMALL, "approach", favour=2)  # network action 2 = TURN_RIGHT
     saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
-    controller = make_controller("move2hear", 1, checkpoint=str(tmp_path))
+    controller = make_controller("move2hear:approach", 1, checkpoint=str(tmp_path))
     controller.reset(0, start("far_target"))
     assert [int(controller.act(observation(1, s))[0]) for s in (0, 79, 80)] == [TURN_RIGHT, TURN_RIGHT, TURN_LEFT]
     assert controller.model_files() == [tmp_path / "policy_quality.pt", tmp_path / "policy_approach.pt"]
-    keeps_stop = make_controller("move2hear:stop", 1, checkpoint=str(tmp_path))  # needs pi^N + Stop
+    keeps_stop = make_controller("move2hear", 1, checkpoint=str(tmp_path))  # needs pi^N + Stop
     keeps_stop.reset(0, start("far_target"))
     assert keeps_stop.act(observation(1)).tolist() == [STOP]
     (tmp_path / "policy_navigation.pt").rename(tmp_path / "policy_approach.pt")  # a pi^N + Stop file misnamed
     with pytest.raises(CheckpointError, match="holds a 'navigation' policy, expected 'approach'"):
-        make_controller("move2hear", 1, checkpoint=str(tmp_path)).reset(0, start("far_target"))
+        make_controller("move2hear:approach", 1, checkpoint=str(tmp_path)).reset(0, start("far_target"))
 
 
 def test_near_target_composite_walks_with_the_approach_policy_until_its_own_switch_step(tmp_path):
     saved(tmp_path / "policy_approach.pt", SMALL, "approach", favour=2)  # network action 2 = TURN_RIGHT
     saved(tmp_path / "policy_quality.pt", SMALL, "quality", favour=1)  # network action 1 = TURN_LEFT
-    controller = make_controller("move2hear", 2, checkpoint=str(tmp_path), switch_step=6, near_switch_step=3)
+    controller = make_controller("move2hear:approach", 2, checkpoint=str(tmp_path), switch_step=6, near_switch_step=3)
     controller.reset(0, start("near_target"))
     controller.reset(1, start("far_target"))
     actions = [controller.act(observation(2, s)).tolist() for s in range(8)]
@@ -220,12 +226,16 @@ def test_near_target_composite_walks_with_the_approach_policy_until_its_own_swit
         make_controller("move2hear", 1, checkpoint=str(tmp_path), near_switch_step=-2)
 
 
-def test_the_shipped_composite_walks_with_the_shipped_approach_policy():
+def test_the_shipped_move2hear_walks_with_pi_n_and_stop_and_the_approach_variant_with_the_approach_policy():
+    default = learned.DEFAULT_POLICY_DIR
     controller = make_controller("move2hear", 1)
     controller.reset(0, start("far_target"))
-    default = learned.DEFAULT_POLICY_DIR
-    assert controller.model_files() == [default / "policy_quality.pt", default / "policy_approach.pt"]
-    assert controller.navigation.loaded.policy_kind == "approach" and not controller.navigation.loaded.config.stop
+    assert controller.model_files() == [default / "policy_quality.pt", default / "policy_navigation.pt"]
+    assert controller.navigation.loaded.config.stop and controller.switch_step == 100
+    approach = make_controller("move2hear:approach", 1)
+    approach.reset(0, start("far_target"))
+    assert approach.model_files() == [default / "policy_quality.pt", default / "policy_approach.pt"]
+    assert approach.navigation.loaded.policy_kind == "approach" and not approach.navigation.loaded.config.stop
 
 
 def test_av_navigator_reads_the_mixture_and_the_target_class(tmp_path):
