@@ -17,6 +17,7 @@ from pipeline_helpers import ROOT, TINY_SIM, bag_messages, node_args, node_env, 
 
 from m2h_ros import sim_world, topics
 from m2h_ros.core.results import read_results
+from m2h_ros.core.world.episodes import DEFAULT_MAX_STEPS, STOP
 from m2h_ros.node_configs import SimConfig
 
 pytestmark = pytest.mark.graph
@@ -105,19 +106,28 @@ def test_scores_equal_the_in_process_run(tiny_run, small_library, small_data_dir
     assert_equals_in_process(out, {**TINY_SIM, "num_episodes": 2}, CONTROLLER, 7, small_library)
 
 
-def test_the_default_controller_is_move2hear_and_acts_as_in_process(small_library, small_data_dir, tmp_path,
-                                                                    monkeypatch):
-    """The main job's controller (the params file's default): the shipped pi^Q reads the camera and the
-    separator's three estimates through the graph and chooses what it chooses in-process."""
+# Far-target: tiny episode 10 is one the shipped pi^N + Stop ends with Stop (at step 39, on the target's node),
+# so the Stop's path through the graph is exercised; a retrained pi^N may need another episode here.
+@pytest.mark.parametrize("task, first", [("near_target", 0), ("far_target", 10)])
+def test_the_default_controller_is_move2hear_and_acts_as_in_process(task, first, small_library, small_data_dir,
+                                                                    tmp_path, monkeypatch):
+    """The main job's controller (the params file's default) reads the camera and the separator's three
+    estimates through the graph and chooses what it chooses in-process: near-target the shipped pi^Q,
+    far-target the shipped pi^N + Stop, whose Stop ends the episode in both."""
     from m2h_ros.node_configs import ControllerConfig
 
     assert ControllerConfig().policy == "move2hear"
-    sim = {**TINY_SIM, "camera_size": 64, "num_episodes": 1}  # the compact policy's RGB size
-    result = run_pipeline(tmp_path, small_data_dir, "--episodes", "1", *tiny_sets(camera_size=64))
+    sim = {**TINY_SIM, "camera_size": 64, "num_episodes": 1, "task": task,  # the compact policy's RGB size
+           "first_episode": first}
+    result = run_pipeline(tmp_path, small_data_dir, "--episodes", "1", "--task", task, "--first", str(first),
+                          *tiny_sets(camera_size=64))
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "| move2hear | near_target | unheard | 1 |" in result.stdout
+    assert f"| move2hear | {task} | unheard | 1 |" in result.stdout
     monkeypatch.setenv("M2H_DATA_DIR", str(small_data_dir))
     assert_equals_in_process(tmp_path, sim, "move2hear", 0, small_library)
+    if task == "far_target":
+        (episode,) = read_results(tmp_path / "scores" / "results.json")
+        assert episode.actions[-1] == STOP and len(episode.actions) < DEFAULT_MAX_STEPS[task] and episode.success
 
 
 def start_graph(processes, data_dir, tmp_path, *, sim: dict, evaluator: bool = True):
