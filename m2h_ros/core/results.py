@@ -16,7 +16,7 @@ import csv
 import dataclasses
 import json
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -142,12 +142,13 @@ def summarize(results: Iterable[EpisodeResult], *, by: Sequence[str] = GROUP_KEY
     return rows
 
 
-def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metric: str = "si_sdr",
-                       by: Sequence[str] = GROUP_KEYS, vary: str = "controller") -> list[dict]:
+def paired_differences(results: Iterable[EpisodeResult], *, reference: str | Mapping[str, str],
+                       metric: str = "si_sdr", by: Sequence[str] = GROUP_KEYS, vary: str = "controller") -> list[dict]:
     """Final-step ``metric`` of each other ``vary`` value minus ``reference``'s on the same episodes,
     mean and 95% CI per group of ``by`` (which holds ``vary``): the paired comparison is much tighter
     than comparing the two means, since episodes vary far more than controllers (or separators) do.
-    Default: each controller against ``reference`` per (task, sound split)."""
+    Default: each controller against ``reference`` per (task, sound split). A mapping pairs each ``vary``
+    value it names with its own reference (e.g. a sweep's condition with its "no f^R" twin)."""
     if metric not in METRICS:
         raise ConfigError(f"unknown metric {metric!r}; one of {METRICS}")
     if vary not in by:
@@ -158,14 +159,15 @@ def paired_differences(results: Iterable[EpisodeResult], *, reference: str, metr
         finals.setdefault(tuple(getattr(r, k) for k in by), {})[r.episode_id] = r.final(metric)
     rows = []
     for key, values in finals.items():
-        base = finals.get((*key[:at], reference, *key[at + 1:]))
-        if key[at] == reference or base is None:
+        against = reference if isinstance(reference, str) else reference.get(key[at])
+        base = finals.get((*key[:at], against, *key[at + 1:]))
+        if key[at] == against or base is None:
             continue
         shared = sorted(values.keys() & base.keys())
         if not shared:
             continue
         mean, half = mean_ci([values[e] - base[e] for e in shared])
-        rows.append({**dict(zip(by, key)), "reference": reference, "metric": metric, "episodes": len(shared),
+        rows.append({**dict(zip(by, key)), "reference": against, "metric": metric, "episodes": len(shared),
                      "difference": mean, "ci95": half})
     return rows
 

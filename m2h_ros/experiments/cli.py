@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from m2h_ros.errors import M2HError
-from m2h_ros.experiments.sweep import Condition, Sweep, run_sweep, write_sweep
+from m2h_ros.experiments.sweep import Condition, Sweep, estimate_pairs, run_sweep, write_sweep
 from m2h_ros.paths import REPO_DIR, file_sha256, repo_relative
 
 
@@ -76,7 +76,7 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
             **({"policy_checkpoint": repo_relative(args.policy_checkpoint)} if args.policy_checkpoint else {})}
     paths = write_sweep(results, rows, args.out, title=title, xlabel=xlabel, command=command, meta=meta,
                         started=started, reference=reference if reference in sweep.controllers else None,
-                        condition_reference=condition_reference)
+                        condition_reference=condition_reference or estimate_pairs(sweep.conditions) or None)
     print(paths["markdown"].read_text())
     print(", ".join(f"{kind}: {path}" for kind, path in paths.items()))
     return 0

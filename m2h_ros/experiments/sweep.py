@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -103,11 +103,12 @@ def run_sweep(sweep: Sweep, *, workers: int = 1, address: str | None = None, pro
 
 def write_sweep(results: Sequence[EpisodeResult], rows: Sequence[dict], out: Path, *, title: str, xlabel: str,
                 command: str, meta: dict, started: float, reference: str | None = None,
-                condition_reference: str | None = None) -> dict[str, Path]:
+                condition_reference: str | Mapping[str, str] | None = None) -> dict[str, Path]:
     """results.md / .csv / .json grouped by condition, and si_sdr_vs_<x>.png; returns the paths.
     ``reference``: a controller every other one is compared with, episode by episode, per condition;
-    ``condition_reference``: a condition every other one is compared with, per controller (both as
-    final-step SI-SDR differences, GT phase, in the Markdown and in results.json)."""
+    ``condition_reference``: a condition every other one is compared with, per controller, or each
+    condition's own (:func:`estimate_pairs`: with f^R against without) (both as final-step SI-SDR
+    differences, GT phase, in the Markdown and in results.json)."""
     versus = (paired_differences(results, reference=condition_reference, by=SWEEP_KEYS, vary="condition")
               if condition_reference else [])
     meta = {**meta, "command": command, "wall_seconds": round(time.perf_counter() - started, 1),
@@ -117,8 +118,10 @@ def write_sweep(results: Sequence[EpisodeResult], rows: Sequence[dict], out: Pat
                           reference=reference)
     if versus:
         with paths["markdown"].open("a") as stream:
-            stream.write(f"\nFinal-step SI-SDR (dB, GT phase) minus the {condition_reference!r} condition's, "
-                         f"same controller, same episodes:\n\n{paired_table(versus, by=SWEEP_KEYS)}")
+            against = (f"the {condition_reference!r} condition's" if isinstance(condition_reference, str)
+                       else f"the same condition's {ESTIMATE_LABELS['monaural']} (f^M's estimate)")
+            stream.write(f"\nFinal-step SI-SDR (dB, GT phase) minus {against}, same controller, same episodes:\n\n"
+                         f"{paired_table(versus, by=SWEEP_KEYS)}")
     paths["plot"] = plot_curve(rows, out / "si_sdr_vs_condition.png", title=title, xlabel=xlabel)
     return paths
 
@@ -151,3 +154,10 @@ def with_estimates(conditions: Sequence[Condition]) -> list[Condition]:
     """Each condition twice: scored on f^R's estimate and on f^M's (the "without f^R" ablation)."""
     return [dataclasses.replace(c, label=f"{c.label}, {ESTIMATE_LABELS[e]}", series="" if e == "refined"
                                 else ESTIMATE_LABELS[e], estimate=e) for c in conditions for e in ESTIMATE_LABELS]
+
+
+def estimate_pairs(conditions: Sequence[Condition]) -> dict[str, str]:
+    """Each f^R condition of :func:`with_estimates` -> its "no f^R" twin (the same x): the ablation's paired
+    comparison, f^R's gain on the same episodes; empty for a sweep without the twins."""
+    monaural = {c.x: c.label for c in conditions if c.estimate == "monaural"}
+    return {c.label: monaural[c.x] for c in conditions if c.estimate == "refined" and c.x in monaural}

@@ -8,7 +8,8 @@
 Each controller plays the first ``--count`` test episodes of each task x sound split at each
 microphone noise level (white noise per ear, std = level x the clean mixture's RMS: 0.05 / 0.1 / 0.2
 are SNR 26 / 20 / 14 dB, the levels the separator was trained with), scored on the refined estimate
-(f^R) and, in a second play of the same episodes, on f^M's (no f^R). Jobs run on Ray; the table
+(f^R) and, in a second play of the same episodes, on f^M's (no f^R); the report pairs the two on the same
+episodes (f^R's gain per controller and level) and each controller with Stand In-Place. Jobs run on Ray; the table
 does not depend on ``--workers``. The paper's finding (Supp. Sec. 2): quality falls with noise and
 f^R's memory makes Move2Hear more robust to it.
 """

@@ -10,7 +10,8 @@ from scipy import stats
 from m2h_ros.core.results import EpisodeResult, paired_differences
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.jobs import EvalJob, run_eval_job, run_jobs
-from m2h_ros.experiments.sweep import SWEEP_KEYS, Condition, Sweep, run_sweep, sweep_jobs, with_estimates, write_sweep
+from m2h_ros.experiments.sweep import (SWEEP_KEYS, Condition, Sweep, estimate_pairs, run_sweep, sweep_jobs, with_estimates,
+                                       write_sweep)
 
 
 @pytest.mark.timeout(300)
@@ -50,9 +51,18 @@ def test_a_sweep_writes_its_table_and_curve(folder_library, fast_acoustics, tmp_
     assert {r["condition"] for r in rows} == {"sources >= 1.0 m, f^R", "sources >= 1.0 m, no f^R",
                                               "sources >= 2.0 m, f^R", "sources >= 2.0 m, no f^R"}
     assert all(r["episodes"] == 2 and r["series"] in ("", "no f^R") for r in rows)
-    paths = write_sweep(results, rows, tmp_path, title="t", xlabel="m", command="python x.py", meta={}, started=0.0)
+    pairs = estimate_pairs(conditions)
+    assert pairs == {"sources >= 1.0 m, f^R": "sources >= 1.0 m, no f^R", "sources >= 2.0 m, f^R": "sources >= 2.0 m, no f^R"}
+    paths = write_sweep(results, rows, tmp_path, title="t", xlabel="m", command="python x.py", meta={}, started=0.0,
+                        condition_reference=pairs)
     table = paths["markdown"].read_text()
     assert "| random | sources >= 2.0 m, no f^R | near_target | unheard | 2 |" in table
+    # f^R's gain: each f^R condition against its own "no f^R" twin, per controller, on the same episodes.
+    versus = json.loads(paths["json"].read_text())["meta"]["paired_conditions"]
+    assert sorted((r["controller"], r["condition"], r["reference"]) for r in versus) == [
+        (c, f"sources >= {d} m, f^R", f"sources >= {d} m, no f^R") for c in ("random", "stand_in_place")
+        for d in ("1.0", "2.0")]
+    assert "minus the same condition's no f^R (f^M's estimate)" in table
     assert paths["plot"].stat().st_size > 0
     with pytest.raises(ConfigError, match="unknown controller 'teleport'"):
         Sweep(controllers=["teleport"], tasks=["near_target"], sound_splits=["unheard"], conditions=conditions)
@@ -77,6 +87,9 @@ def test_paired_differences_per_condition_and_between_conditions(tmp_path):
     assert by_condition[1]["ci95"] == pytest.approx(stats.t.ppf(0.975, 1) * np.std([3.0, 0.0], ddof=1) / np.sqrt(2))
     with pytest.raises(ConfigError, match="grouping fields"):
         paired_differences(results, reference="a", vary="condition")
+    own = paired_differences(results, reference={"a": "b"}, by=SWEEP_KEYS, vary="condition")  # a against b only
+    assert [(r["controller"], r["condition"], r["reference"], r["difference"]) for r in own] == [
+        ("stand", "a", "b", pytest.approx(-1.5)), ("move", "a", "b", pytest.approx(-1.5))]
     rows = [{"controller": "move", "task": "near_target", "sound_split": "heard", "condition": "a", "x": "a",
              "series": "", "episodes": 2, "si_sdr": 3.0, "ci95": 1.0}]
     paths = write_sweep(results, rows, tmp_path, title="t", xlabel="x", command="c", meta={}, started=0.0,
