@@ -5,11 +5,11 @@ from pathlib import Path
 import pytest
 
 from m2h_ros.errors import ConfigError, reports_errors
-from m2h_ros.training import ppo, pretrain_separator, train_locator
+from m2h_ros.training import ppo_cli, pretrain_separator, train_locator
 
 
 @pytest.mark.parametrize(("main", "argv", "line"), [
-    (ppo.main, ["--kind", "quality", "--lr", "-1"], "train_policy: error: PPOConfig.lr=-1.0 must be a float in (0, 1]"),
+    (ppo_cli.main, ["--kind", "quality", "--lr", "-1"], "train_policy: error: PPOConfig.lr=-1.0 must be a float in (0, 1]"),
     (train_locator.main, ["--epochs", "0"], "train_locator: error: LocatorTrainConfig.epochs must be an int >= 1, got 0"),
     (pretrain_separator.main, ["--epochs", "0"], "train_separator: error: PretrainConfig.epochs must be an int >= 1, got 0"),
 ], ids=["train_policy", "train_locator", "train_separator"])

@@ -14,7 +14,8 @@ from m2h_ros.core.world.navgrid import N_HEADINGS
 from m2h_ros.errors import ConfigError
 from m2h_ros.training.teacher_probe import ProbeData, collect_probe_data, fit_probe, ild_sign_accuracy
 from m2h_ros.models.policy import ACTIONS_NO_STOP, ACTIONS_WITH_STOP
-from m2h_ros.training.ppo import PPOTrainer, build_parser, config_from_args, train
+from m2h_ros.training.ppo import PPOTrainer, train
+from m2h_ros.training.ppo_cli import build_parser, config_from_args
 from m2h_ros.training.teacher import approach_action, teacher_probabilities
 from test_ppo import tiny
 
