@@ -127,7 +127,9 @@ def test_the_default_controller_is_move2hear_and_acts_as_in_process(task, first,
     assert_equals_in_process(tmp_path, sim, "move2hear", 0, small_library)
     if task == "far_target":
         (episode,) = read_results(tmp_path / "scores" / "results.json")
-        assert episode.actions[-1] == STOP and len(episode.actions) < DEFAULT_MAX_STEPS[task] and episode.success
+        assert episode.actions[-1] == STOP and len(episode.actions) < DEFAULT_MAX_STEPS[task] and episode.success, (
+            f"tiny far-target episode {first} no longer ends with pi^N's Stop ({len(episode.actions)} actions): "
+            "pick an episode where the shipped pi^N stops")
 
 
 def start_graph(processes, data_dir, tmp_path, *, sim: dict, evaluator: bool = True):
