@@ -12,7 +12,8 @@ same functions as the evaluator node. Prints the paper-style table (final-step S
 ground-truth-phase and mixture-phase variants, STFT distance: mean ± 95% CI; SR and SPL for
 far-target), each controller's final-step SI-SDR minus ``--reference``'s on the same episodes
 (paired: mean ± 95% CI), and writes results.md / .csv / .json and si_sdr_vs_step.png into ``--out``.
-``--scene-split val`` plays the validation episodes instead: choose models and settings there, report on test.
+``--scene-split val`` plays the validation episodes instead: choose models and settings there, report on test
+(``train`` / ``train24``: the training scenes, to compare a policy where it trained with where it did not).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world import acoustics  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
+from m2h_ros.core.world.scene import SCENE_SPLITS  # noqa: E402
 from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
@@ -63,8 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "one with ':greedy' takes the most likely action instead of sampling")
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", default="unheard", help="heard, unheard or both comma-separated")
-    parser.add_argument("--scene-split", default="test", choices=("val", "test"),
-                        help="val: the validation scenes' episodes (for choosing models), test: the reported ones")
+    parser.add_argument("--scene-split", default="test", choices=tuple(SCENE_SPLITS),
+                        help="val: the validation scenes' episodes (for choosing models), test: the reported ones; "
+                             "train / train24: the training scenes' (a diagnostic: a policy where it trained)")
     parser.add_argument("--count", type=int, default=1000, help="episodes per sound split")
     parser.add_argument("--first", type=int, default=0, help="index of the first episode of the split")
     parser.add_argument("--slots", type=int, default=16, help="episodes played at once")
@@ -89,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
 def select_episodes(task: str, split: str, *, first: int, count: int, library: SoundLibrary,
                     scene_split: str = "test") -> list[Episode]:
     """Episodes first .. first + count - 1 of the standard episode file of a task x sound split
-    (``scene_split`` test or val)."""
+    (``scene_split`` test, val, or a training split)."""
     episodes = episodes_for(EpisodeConfig(task=task, scene_split=scene_split, sound_split=split), library)
     if first < 0 or count < 1 or first + count > len(episodes):
         raise ConfigError(f"--first {first} --count {count} selects outside the {len(episodes)} "

@@ -64,6 +64,10 @@ def test_episodes_come_from_the_chosen_scene_split(evaluate, folder_library):
     val = evaluate.select_episodes("near_target", "unheard", first=0, count=3, library=folder_library, scene_split="val")
     test = evaluate.select_episodes("near_target", "unheard", first=0, count=3, library=folder_library)
     assert all(e.scene_id.startswith("val_") for e in val) and all(e.scene_id.startswith("test_") for e in test)
+    train = evaluate.select_episodes("far_target", "heard", first=0, count=3, library=folder_library,
+                                     scene_split="train24")  # the training scenes, a diagnostic
+    assert all(e.scene_id.startswith("train24_") for e in train)
+    assert evaluate.build_parser().parse_args(["--scene-split", "train"]).scene_split == "train"
     with pytest.raises(ConfigError, match="near_target unheard val episodes"):
         evaluate.select_episodes("near_target", "unheard", first=0, count=10**6, library=folder_library,
                                  scene_split="val")
