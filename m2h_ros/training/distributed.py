@@ -24,6 +24,12 @@ def init_distributed(device: torch.device) -> tuple[int, int]:
     return 0, 1
 
 
+def close_distributed() -> None:
+    """Leave the torchrun group :func:`init_distributed` joined, if any (the end of a run)."""
+    if dist.is_initialized():
+        dist.destroy_process_group()
+
+
 def all_reduce_mean(tensors: list[torch.Tensor], world: int) -> None:
     """Average tensors in place over all workers (one flat all-reduce)."""
     if world == 1 or not tensors:

@@ -16,13 +16,12 @@ from pathlib import Path
 # Spinning OpenMP workers collapse torch's speed on a shared machine (see pretrain_separator).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import torch.distributed as dist  # noqa: E402
-
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
-from m2h_ros.core.world.episodes import EpisodeConfig  # noqa: E402
+from m2h_ros.core.world.episodes import TASKS, EpisodeConfig  # noqa: E402
 from m2h_ros.errors import reports_errors  # noqa: E402
 from m2h_ros.models.device import DEVICES  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES  # noqa: E402
+from m2h_ros.training.distributed import close_distributed  # noqa: E402
 from m2h_ros.training.ppo import KINDS, TRAIN_FAR_STEPS, TRAINING_SCENE_SPLITS, PPOConfig, train  # noqa: E402
 from m2h_ros.training.rewards import QUALITY_REWARDS  # noqa: E402
 
@@ -45,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--n-envs", type=int, default=PPOConfig.n_envs)
     parser.add_argument("--n-steps", type=int, default=PPOConfig.n_steps)
     parser.add_argument("--episodes", type=int, default=2000, help="training episodes (train scenes, heard sounds)")
-    parser.add_argument("--task", choices=("near_target", "far_target"), help="default: the kind's")
+    parser.add_argument("--task", choices=TASKS, help="default: the kind's")
     parser.add_argument("--scene-split", default="train", choices=TRAINING_SCENE_SPLITS,
                         help="training scenes: train (12, what the shipped policies trained on) or train24 (24)")
     parser.add_argument("--separator", default="", help="separator checkpoint (default: the shipped one)")
@@ -112,8 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     command = shlex.join(["python", "scripts/train_policy.py", *(sys.argv[1:] if argv is None else argv)])
     result = train(config, SoundLibrary.load(), out_dir=args.out or Path("runs") / f"policy_{args.kind}",
                    command=command, fresh=args.fresh)
-    if dist.is_initialized():
-        dist.destroy_process_group()
+    close_distributed()
     last = result.history[-1] if result.history else {}
     print(f"[train_policy] {args.kind}: {last.get('update', 0)} updates, {last.get('env_steps', 0)} env steps; "
           f"policy {result.checkpoint}, log {result.out_dir / 'log.csv'}, curve {result.out_dir / 'curve.png'}")

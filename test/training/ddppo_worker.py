@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 
 import torch
-import torch.distributed as dist
 
 from m2h_ros.core.sounds.library import SoundLibrary, SoundLibraryConfig
+from m2h_ros.training.distributed import close_distributed
 from m2h_ros.training.ppo import train
 
 spec = importlib.util.spec_from_file_location("root_conftest", Path(__file__).resolve().parents[1] / "conftest.py")
@@ -23,4 +23,4 @@ folders = root_conftest.write_sound_folders(out / f"folders{rank}")
 library = SoundLibrary.from_folders(folders, config=SoundLibraryConfig(clips_heard=4, clips_unheard=2))
 result = train(pickle.loads(config_path.read_bytes()), library, out_dir=out, progress=False)
 torch.save(result.net.state_dict(), out / f"rank{rank}.pt")
-dist.destroy_process_group()
+close_distributed()
