@@ -13,7 +13,7 @@ ground-truth-phase and mixture-phase variants, STFT distance: mean ± 95% CI; SR
 far-target), each controller's final-step SI-SDR minus ``--reference``'s on the same episodes
 (paired: mean ± 95% CI), and writes results.md / .csv / .json and si_sdr_vs_step.png into ``--out``.
 ``--scene-split val`` plays the validation episodes instead: choose models and settings there, report on test
-(``train`` / ``train24``: the training scenes, to compare a policy where it trained with where it did not).
+(``train`` / ``train24`` / ``train48``: the training scenes, to compare a policy where it trained with where it did not).
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sound-split", default="unheard", help="heard, unheard or both comma-separated")
     parser.add_argument("--scene-split", default="test", choices=tuple(SCENE_SPLITS),
                         help="val: the validation scenes' episodes (for choosing models), test: the reported ones; "
-                             "train / train24: the training scenes' (a diagnostic: a policy where it trained)")
+                             "train / train24 / train48: the training scenes' (a diagnostic: a policy where it trained)")
     parser.add_argument("--count", type=int, default=1000, help="episodes per sound split")
     parser.add_argument("--first", type=int, default=0, help="index of the first episode of the split")
     parser.add_argument("--slots", type=int, default=16, help="episodes played at once")

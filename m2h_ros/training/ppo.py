@@ -140,7 +140,7 @@ WINDOWED = ("return", "final_nmse", "final_quality", "success")  # per-episode v
 POLICY_LOSSES = ("value_loss", "action_loss", "entropy", "teacher_ce", "location_loss", "location_error_m")
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
-TRAINING_SCENE_SPLITS = ("train", "train24")
+TRAINING_SCENE_SPLITS = ("train", "train24", "train48")
 SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
 
 

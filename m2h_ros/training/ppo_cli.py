@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=2000, help="training episodes (train scenes, heard sounds)")
     parser.add_argument("--task", choices=TASKS, help="default: the kind's")
     parser.add_argument("--scene-split", default="train", choices=TRAINING_SCENE_SPLITS,
-                        help="training scenes: train (12, what the shipped policies trained on) or train24 (24)")
+                        help="training scenes: train (12), train24 (24) or train48 (48); each holds the one before")
     parser.add_argument("--separator", default="", help="separator checkpoint (default: the shipped one)")
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,

@@ -197,10 +197,12 @@ def test_small_preset_is_fast_and_small():
 
 
 def test_splits_are_disjoint_and_named():
-    # Training, validation and test scenes never share a seed; train24 is train and 12 more.
-    seeds = [set(SCENE_SPLITS[name]) for name in ("train24", "val", "test")]
+    # Training, validation and test scenes never share a seed; train24 is train and 12 more, train48 train24
+    # and 24 more.
+    seeds = [set(SCENE_SPLITS[name]) for name in ("train48", "val", "test")]
     assert sum(len(s) for s in seeds) == len(set().union(*seeds))
     assert SCENE_SPLITS["train24"][:12] == SCENE_SPLITS["train"] and len(SCENE_SPLITS["train24"]) == 24
+    assert SCENE_SPLITS["train48"][:24] == SCENE_SPLITS["train24"] and len(set(SCENE_SPLITS["train48"])) == 48
     test = load_split("test")
     assert [s.scene_id for s in test] == [f"test_{i:03d}" for i in range(len(SCENE_SPLITS["test"]))]
     assert [s.seed for s in test] == list(SCENE_SPLITS["test"])
