@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """Paired comparisons from evaluation results already written: each controller minus a reference's
-final-step score on the same episodes, mean and 95% CI per task and sound split. No episode is played
+final-step score on the same episodes, mean and 95% CI per task and sound split (``--metric success`` /
+``spl``: far-target navigation's, episode by episode: a paired SR / SPL difference). No episode is played
 again.
 
     python scripts/paired.py docs/results/near_target_all/results.csv --reference doa,stand_in_place \
-        [--metric si_sdr|si_sdr_mixture_phase|stft_distance] [--out paired.md] [--png paired.png]
+        [--metric si_sdr|si_sdr_mixture_phase|stft_distance|success|spl] [--out paired.md] [--png paired.png]
     python scripts/paired.py shipped/results.json candidate/results.json --tags shipped,candidate \
         --reference move2hear:shipped
 
@@ -29,7 +30,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from m2h_ros.core.results import (METRICS, EpisodeResult, paired_differences, paired_section, plot_paired,
+from m2h_ros.core.results import (METRICS, PAIRED_METRICS, EpisodeResult, paired_differences, paired_section, plot_paired,
                                   read_final_scores, read_results)
 from m2h_ros.errors import ConfigError, reports_errors
 
@@ -40,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--reference", required=True, help="controller(s) to compare with, comma-separated")
     parser.add_argument("--tags", default="", help="one name per results file, comma-separated: its "
                         "controllers become <controller>:<tag>")
-    parser.add_argument("--metric", choices=METRICS, default="si_sdr")
+    parser.add_argument("--metric", choices=PAIRED_METRICS, default="si_sdr",
+                        help="a final-step score, or far-target navigation's success (paired SR) or SPL")
     parser.add_argument("--out", type=Path, default=None, help="also write the tables to this Markdown file")
     parser.add_argument("--png", type=Path, default=None, help="also draw the differences as a forest plot")
     return parser

@@ -29,8 +29,11 @@ from m2h_ros.errors import ConfigError
 
 HELD = -1  # an action slot no command filled in time (free-running mode held the robot), AgentPose.last_action too
 METRICS = ("si_sdr", "si_sdr_mixture_phase", "stft_distance")
+# Per-episode figures of navigation, paired like the final-step scores (far-target: a policy that walks better).
+EPISODE_METRICS = ("success", "spl")
+PAIRED_METRICS = METRICS + EPISODE_METRICS
 METRIC_LABELS = {"si_sdr": "SI-SDR (dB, GT phase)", "si_sdr_mixture_phase": "SI-SDR (dB, mixture phase)",
-                 "stft_distance": "STFT distance"}
+                 "stft_distance": "STFT distance", "success": "success (SR, 0 or 1)", "spl": "SPL"}
 
 
 @dataclass
@@ -61,7 +64,9 @@ class EpisodeResult:
         return self.shortest_path / max(self.path_length, self.shortest_path, 1e-9)
 
     def final(self, metric: str) -> float:
-        return float(getattr(self, metric)[-1])
+        """The last step's ``metric`` (one of METRICS), or the episode's ``success`` / ``spl``."""
+        value = getattr(self, metric)
+        return float(value) if metric in EPISODE_METRICS else float(value[-1])
 
     def to_dict(self) -> dict:
         return {**dataclasses.asdict(self), "spl": self.spl}
@@ -149,8 +154,8 @@ def paired_differences(results: Iterable[EpisodeResult], *, reference: str | Map
     than comparing the two means, since episodes vary far more than controllers (or separators) do.
     Default: each controller against ``reference`` per (task, sound split). A mapping pairs each ``vary``
     value it names with its own reference (e.g. a sweep's condition with its "no f^R" twin)."""
-    if metric not in METRICS:
-        raise ConfigError(f"unknown metric {metric!r}; one of {METRICS}")
+    if metric not in PAIRED_METRICS:
+        raise ConfigError(f"unknown metric {metric!r}; one of {PAIRED_METRICS}")
     if vary not in by:
         raise ConfigError(f"paired_differences: {vary!r} must be one of the grouping fields {tuple(by)}")
     at = list(by).index(vary)
@@ -225,7 +230,8 @@ def paired_table(rows: Sequence[dict], *, by: Sequence[str] = GROUP_KEYS) -> str
 def paired_section(rows: Sequence[dict], *, reference: str, metric: str = "si_sdr",
                    by: Sequence[str] = GROUP_KEYS) -> str:
     """``paired_differences`` rows under a heading naming the metric and the reference."""
-    return (f"Final-step {METRIC_LABELS[metric]} minus {reference}'s on the same episodes:\n\n"
+    what = f"Episode {METRIC_LABELS[metric]}" if metric in EPISODE_METRICS else f"Final-step {METRIC_LABELS[metric]}"
+    return (f"{what} minus {reference}'s on the same episodes:\n\n"
             f"{paired_table(rows, by=by)}")
 
 

@@ -116,3 +116,23 @@ def test_a_sweeps_conditions_pair_as_controllers_of_their_own(paired, tmp_path, 
     assert "minus move2hear[T = 20]'s" in out
     assert "| move2hear[T = 0] | near_target | heard | 2 | -2.50 ± 6.35 |" in out
     assert "| move2hear | near_target | heard | 2 | -2.00 ± 12.71 |" in out  # the plain run: (-1, -3)
+
+
+def test_success_and_spl_pair_as_episode_figures(paired, tmp_path, capsys):
+    """Far-target navigation: two walkers' success (paired SR) and SPL on the same episodes, from a CSV too."""
+    def walks(controller: str, outcomes: dict[str, tuple[bool, float]]) -> list[EpisodeResult]:
+        results = run(controller, dict.fromkeys(outcomes, 1.0))
+        for result, (success, path_length) in zip(results, outcomes.values(), strict=True):
+            result.task, result.success, result.path_length, result.shortest_path = "far_target", success, path_length, 5.0
+        return results
+
+    written = write_results(walks("a", {"e1": (True, 5.0), "e2": (False, 9.0), "e3": (True, 10.0)})
+                            + walks("b", {"e1": (False, 7.0), "e2": (False, 9.0), "e3": (True, 5.0)}),
+                            tmp_path / "walks", plot=False)
+    for path in (written["json"], written["csv"]):
+        assert paired.main([str(path), "--reference", "b", "--metric", "success"]) == 0
+        out = capsys.readouterr().out
+        assert "Episode success (SR, 0 or 1) minus b's" in out
+        assert "| a | far_target | heard | 3 | +0.33 ± 1.43 |" in out  # (1, 0, 0)
+        assert paired.main([str(path), "--reference", "b", "--metric", "spl"]) == 0
+        assert "| a | far_target | heard | 3 | +0.17 ± 1.90 |" in capsys.readouterr().out  # (1, 0, -0.5)
