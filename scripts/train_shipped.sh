@@ -21,7 +21,9 @@
 #               4 from stage 3's weights, 1,500 updates (480,000 env steps) on other train24 episodes (seed 1);
 #               stages 5-9 likewise from the stage before (seeds 2-6) with entropy 0.01;
 #               THREADS=1, as they ran: stage 3 took 60 min beside other trainings, stage 4 42 min beside one,
-#               stages 5-9 26-39 min each beside other jobs (about 6 h 10 min in all).
+#               stages 5-9 26-39 min each beside other jobs (about 6 h 10 min in all); stages 10-12 likewise
+#               (seeds 7-9) on the 48 scenes of split train48, two threads whatever THREADS says, as they ran
+#               (23-24 min each beside short evaluations; about 7 h 20 min in all).
 #   approach:   the far-target composite's walking policy before T^N ("The composite Move2Hear far-target"):
 #               the original's three actions, no Stop, rewarded by the geodesic distance gained; from pi^N +
 #               Stop's stage-2 weights, 2,000 updates (640,000 env steps) on the 24 scenes of split train24,
@@ -33,7 +35,7 @@
 #     cp OUT/separator.pt m2h_ros/models/default/separator_compact.pt
 #     THREADS=1 scripts/train_shipped.sh navigation [OUT]   # default runs/policy_navigation
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_navigation_stage2.pt
-#     cp OUT/stage9/policy.pt m2h_ros/models/default/policy_navigation.pt
+#     cp OUT/stage12/policy.pt m2h_ros/models/default/policy_navigation.pt
 #     THREADS=1 scripts/train_shipped.sh approach [OUT]   # default runs/policy_approach
 #     cp OUT/policy.pt m2h_ros/models/default/policy_approach.pt
 set -euo pipefail
@@ -75,7 +77,12 @@ case "$KIND" in
         python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.01 \
             --seed $((stage - 3)) --init-policy "$OUT/stage$((stage - 1))/policy.pt" --out "$OUT/stage$stage"
     done
-    echo "[train_shipped] pi^N + Stop: $OUT/stage9/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
+    # Stages 10-12 on twice the scenes (pi^N + Stop walked unseen scenes much worse than its own; session 29).
+    for stage in 10 11 12; do
+        python scripts/train_policy.py "$recipe" --threads 2 --scene-split train48 --entropy-coef 0.01 \
+            --seed $((stage - 3)) --init-policy "$OUT/stage$((stage - 1))/policy.pt" --out "$OUT/stage$stage"
+    done
+    echo "[train_shipped] pi^N + Stop: $OUT/stage12/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;
   approach)
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --out "$OUT"
     echo "[train_shipped] the composite's approach policy: $OUT/policy.pt" ;;

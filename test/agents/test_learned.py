@@ -193,7 +193,7 @@ def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
     controller = make_controller("move2hear", 1, checkpoint=str(tmp_path))  # no policy_navigation.pt
     controller.reset(0, start("near_target"))
     assert controller.act(observation(1)).tolist() == [TURN_LEFT]
-    with pytest.raises(CheckpointError, match="navigation policy checkpoint .*policy_navigation.pt not found; train it with `THREADS=1 scripts/train_shipped.sh navigation, then copy runs/policy_navigation/stage9"):
+    with pytest.raises(CheckpointError, match="navigation policy checkpoint .*policy_navigation.pt not found; train it with `THREADS=1 scripts/train_shipped.sh navigation, then copy runs/policy_navigation/stage12"):
         controller.reset(0, start("far_target"))
 
 
