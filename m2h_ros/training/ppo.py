@@ -87,6 +87,7 @@ from m2h_ros.core.audio.stft import to_slices  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for  # noqa: E402
+from m2h_ros.core.world.scene import SCENE_SPLITS  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError  # noqa: E402
 from m2h_ros.models.device import check_device, resolve_device
@@ -140,7 +141,8 @@ WINDOWED = ("return", "final_nmse", "final_quality", "success")  # per-episode v
 POLICY_LOSSES = ("value_loss", "action_loss", "entropy", "teacher_ce", "location_loss", "location_error_m")
 TIMED_PARTS = ("sim", "separator", "act", "update", "refiner")  # log columns <part>_share
 TRAIN_FAR_STEPS = 80  # the original trains far-target on 80-step episodes (100 at test)
-TRAINING_SCENE_SPLITS = ("train", "train24", "train48")
+# The scene splits named train*: each holds the one before (core/world/scene.py); val and test never train.
+TRAINING_SCENE_SPLITS = tuple(name for name in SCENE_SPLITS if name.startswith("train"))
 SEPARATOR_POSE_CACHE = 32  # poses per slot whose f^B / f^M outputs the rollout keeps (BatchEnv's pose_cache)
 
 
