@@ -73,13 +73,11 @@ case "$KIND" in
         --updates 2000 --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
         --seed 1 --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
-    for stage in 5 6 7 8 9; do
-        python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.01 \
-            --seed $((stage - 3)) --init-policy "$OUT/stage$((stage - 1))/policy.pt" --out "$OUT/stage$stage"
-    done
-    # Stages 10-12 on twice the scenes (pi^N + Stop walked unseen scenes much worse than its own; session 29).
-    for stage in 10 11 12; do
-        python scripts/train_policy.py "$recipe" --threads 2 --scene-split train48 --entropy-coef 0.01 \
+    # Stages 10-12 on twice the scenes (pi^N + Stop walked unseen scenes much worse than its own; session 29),
+    # on two threads whatever THREADS says, as they ran.
+    for stage in 5 6 7 8 9 10 11 12; do
+        if ((stage <= 9)); then split=train24 threads=$THREADS; else split=train48 threads=2; fi
+        python scripts/train_policy.py "$recipe" --threads "$threads" --scene-split "$split" --entropy-coef 0.01 \
             --seed $((stage - 3)) --init-policy "$OUT/stage$((stage - 1))/policy.pt" --out "$OUT/stage$stage"
     done
     echo "[train_shipped] pi^N + Stop: $OUT/stage12/policy.pt (stage 2, where the approach policy starts: $OUT/stage2/policy.pt)" ;;

@@ -119,8 +119,9 @@ def test_the_shipped_pi_n_is_the_twelfth_stage_of_train_shipped_navigation(monke
     assert (shipped["updates"], shipped["teacher_coef"], shipped["entropy_coef"]) == (1500, 1.0, 0.01)
     assert shipped["episodes"]["scene_split"] == "train48"
     script = (REPO_DIR / "scripts" / "train_shipped.sh").read_text()
-    assert "for stage in 5 6 7 8 9" in script and "for stage in 10 11 12" in script
-    assert "--threads 2 --scene-split train48 --entropy-coef 0.01" in script and "cp OUT/stage12/policy.pt" in script
+    assert "for stage in 5 6 7 8 9 10 11 12; do" in script and "else split=train48 threads=2; fi" in script
+    assert '--threads "$threads" --scene-split "$split" --entropy-coef 0.01' in script
+    assert "--seed $((stage - 3))" in script and "cp OUT/stage12/policy.pt" in script
 
 
 def test_train_shipped_names_its_kinds():
