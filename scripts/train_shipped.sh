@@ -73,8 +73,8 @@ case "$KIND" in
         --updates 2000 --init-policy m2h_ros/models/default/policy_approach.pt --out "$OUT/stage3"
     python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train24 --entropy-coef 0.02 \
         --seed 1 --init-policy "$OUT/stage3/policy.pt" --out "$OUT/stage4"
-    # Stages 10-12 on twice the scenes (pi^N + Stop walked unseen scenes much worse than its own; session 29),
-    # on two threads whatever THREADS says, as they ran.
+    # Stages 5-12 each from the stage before (seed = stage - 3); 10-12 on twice the scenes (pi^N + Stop walked
+    # unseen scenes much worse than its own; session 29), on two threads whatever THREADS says, as they ran.
     for stage in 5 6 7 8 9 10 11 12; do
         if ((stage <= 9)); then split=train24 threads=$THREADS; else split=train48 threads=2; fi
         python scripts/train_policy.py "$recipe" --threads "$threads" --scene-split "$split" --entropy-coef 0.01 \
