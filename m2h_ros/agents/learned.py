@@ -75,17 +75,18 @@ SHIPPED_RECIPES = {"quality": ("scripts/train_shipped.sh quality", "runs/policy_
                    "approach": ("THREADS=1 scripts/train_shipped.sh approach", "runs/policy_approach/policy.pt")}
 
 
-def train_command(kind: str) -> str:
+def train_command(kind: str, destination: Path) -> str:
+    """How to make the ``kind`` policy file at ``destination`` (the shipped folder's or another)."""
     command, trained = SHIPPED_RECIPES.get(
         kind, (f"python scripts/train_policy.py --kind {kind} --out runs/policy_{kind}", f"runs/policy_{kind}/policy.pt"))
-    return f"{command}, then copy {trained} to {default_policy_path(kind)}"
+    return f"`{command}`, then copy {trained} to {destination}"
 
 
 def load_learned(kind: str, path: str | Path = "") -> LoadedPolicy:
     """The ``kind`` policy at ``path`` (empty: the shipped one); a missing file names the command."""
     path = Path(path) if str(path) else default_policy_path(kind)
     if not path.is_file():
-        raise CheckpointError(f"{kind} policy checkpoint {path} not found; train it with `{train_command(kind)}`")
+        raise CheckpointError(f"{kind} policy checkpoint {path} not found; train it with {train_command(kind, path)}")
     return load_policy(path, policy_kind=kind)
 
 

@@ -50,7 +50,7 @@ def test_every_learned_controller_is_registered_and_names_its_training_command(t
     assert set(LEARNED) == set(kinds)
     for name, kind in kinds.items():
         assert issubclass(controller_class(name), Controller) and controller_class(name).name == name
-        command = (f"scripts/train_shipped.sh {kind}," if kind in ("quality", "navigation")
+        command = (f"scripts/train_shipped.sh {kind}`," if kind in ("quality", "navigation")
                    else f"scripts/train_policy.py --kind {kind} ")
         with pytest.raises(CheckpointError, match=command):
             make_controller(name, 1)
@@ -193,8 +193,13 @@ def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
     controller = make_controller("move2hear", 1, checkpoint=str(tmp_path))  # no policy_navigation.pt
     controller.reset(0, start("near_target"))
     assert controller.act(observation(1)).tolist() == [TURN_LEFT]
-    with pytest.raises(CheckpointError, match="navigation policy checkpoint .*policy_navigation.pt not found; train it with `THREADS=1 scripts/train_shipped.sh navigation, then copy runs/policy_navigation/stage12"):
+    missing = tmp_path / "policy_navigation.pt"
+    with pytest.raises(CheckpointError) as error:
         controller.reset(0, start("far_target"))
+    # The command in backticks, and the copy goes to the folder that lacks the file, not the shipped folder.
+    assert str(error.value) == (f"navigation policy checkpoint {missing} not found; train it with `THREADS=1 "
+                                "scripts/train_shipped.sh navigation`, then copy runs/policy_navigation/stage12/policy.pt "
+                                f"to {missing}")
 
 
 def test_composite_walks_with_an_approach_policy_where_the_folder_has_one(tmp_path):
