@@ -1,5 +1,5 @@
 """The command line of PPO training (``scripts/train_policy.py``; under ``torchrun`` for DD-PPO): flags ->
-:class:`~m2h_ros.training.ppo.PPOConfig` -> :func:`~m2h_ros.training.ppo.train`.
+:class:`~m2h_ros.training.ppo_config.PPOConfig` -> :func:`~m2h_ros.training.ppo.train`.
 
     python scripts/train_policy.py --kind quality|navigation|approach|novelty|av_navigator [--updates N] [--out DIR]
     python scripts/train_policy.py @params/recipes/policy_quality.args --seed 1 --out runs/mine   # a shipped recipe
@@ -22,7 +22,8 @@ from m2h_ros.errors import reports_errors  # noqa: E402
 from m2h_ros.models.device import DEVICES  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES  # noqa: E402
 from m2h_ros.training.distributed import close_distributed  # noqa: E402
-from m2h_ros.training.ppo import KINDS, TRAIN_FAR_STEPS, TRAINING_SCENE_SPLITS, PPOConfig, train  # noqa: E402
+from m2h_ros.training.ppo import train  # noqa: E402
+from m2h_ros.training.ppo_config import KINDS, TRAIN_FAR_STEPS, TRAINING_SCENE_SPLITS, PPOConfig  # noqa: E402
 from m2h_ros.training.rewards import QUALITY_REWARDS  # noqa: E402
 
 

@@ -39,7 +39,6 @@ import dataclasses
 import hashlib
 import math
 import os
-import platform
 import shlex
 import sys
 import time
@@ -66,6 +65,7 @@ from m2h_ros.models.device import DEVICES, check_device, resolve_device
 from m2h_ros.models.checkpoint import PRETRAINED_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import BACKBONES, PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
+from m2h_ros.training.machine import machine_description  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.separator_data import (  # noqa: E402
     BatchSource,
@@ -282,19 +282,6 @@ def evaluate_refiner(separator: Separator, batches: Sequence[SeparatorBatch]) ->
 # --------------------------------------------------------------------------- the run
 
 
-def _machine() -> dict[str, Any]:
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu_model": model, "cpu_count": os.cpu_count(), "platform": platform.platform(),
-            "python": platform.python_version(), "torch": str(torch.__version__)}
-
-
 def plot_losses(path: Path, history: dict[str, list[dict[str, float]]]) -> Path:
     """Loss curves of both stages (matplotlib Agg) -> PNG."""
     fig, (left, right) = two_panels((11, 4))
@@ -471,7 +458,7 @@ def pretrain(config: PretrainConfig, library: SoundLibrary, *, out: Path, comman
         "initialised_from": initialised_from,
         "wall_seconds": {**seconds, "total": round(sum(state.seconds.values()), 1)},
         "observations_per_second": {s: round(samples[s] / max(state.seconds[s], 1e-9), 1) for s in STAGES},
-        "machine": {**_machine(), "device": str(device)},
+        "machine": {**machine_description(), "device": str(device)},
     }
     save_separator(out, separator, classes=list(TARGET_CATEGORIES), stft_config=config.train_data.env.stft,
                    metadata=metadata, metadata_json=True)

@@ -30,7 +30,8 @@ from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.episodes import EpisodeConfig
 from m2h_ros.machine import availability_line
 from m2h_ros.paths import REPO_DIR
-from m2h_ros.training.ppo import KINDS, TIMED_PARTS, PPOConfig, PPOTrainer
+from m2h_ros.training.ppo import TIMED_PARTS, PPOTrainer
+from m2h_ros.training.ppo_config import KINDS, PPOConfig
 from m2h_ros.training.ppo_cli import build_parser, config_from_args
 from m2h_ros.training.rewards import QUALITY_REWARDS
 

@@ -23,7 +23,8 @@ import m2h_ros
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import EpisodeConfig
-from m2h_ros.training.ppo import KINDS, PPOConfig, PPOTrainer
+from m2h_ros.training.ppo import PPOTrainer
+from m2h_ros.training.ppo_config import KINDS, PPOConfig
 
 # (kind, train_refiner, camera, n_envs, n_minibatches, updates)
 RUNS = [("quality", False, True, 16, 1, 3), ("quality", True, False, 4, 2, 2), ("navigation", False, True, 8, 2, 2),

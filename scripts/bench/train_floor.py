@@ -23,7 +23,7 @@ from torch import nn  # noqa: E402
 
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.policy import PolicyConfig, PolicyInputs, PolicyNet  # noqa: E402
-from m2h_ros.training.ppo import PPOConfig  # noqa: E402
+from m2h_ros.training.ppo_config import PPOConfig  # noqa: E402
 
 
 def multiply_adds(module: nn.Module, run) -> int:

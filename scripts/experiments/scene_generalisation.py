@@ -35,7 +35,7 @@ from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.paths import REPO_DIR  # noqa: E402
-from m2h_ros.training.ppo import TRAIN_FAR_STEPS  # noqa: E402
+from m2h_ros.training.ppo_config import TRAIN_FAR_STEPS  # noqa: E402
 
 TRAINING_SEED = 0  # the shipped far-target recipes' episode seed (params/recipes/*.args)
 

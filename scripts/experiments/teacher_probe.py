@@ -27,7 +27,8 @@ from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.training.teacher_probe import collect_probe_data, fit_probe, ild_sign_accuracy  # noqa: E402
 from m2h_ros.paths import REPO_DIR  # noqa: E402
-from m2h_ros.training.ppo import TRAIN_FAR_STEPS, PPOConfig, PPOTrainer  # noqa: E402
+from m2h_ros.training.ppo import PPOTrainer  # noqa: E402
+from m2h_ros.training.ppo_config import TRAIN_FAR_STEPS, PPOConfig  # noqa: E402
 
 
 @reports_errors("teacher_probe")

@@ -23,7 +23,8 @@ from m2h_ros.models.checkpoint import PRETRAINED_SEPARATOR_CHECKPOINT, load_sepa
 from m2h_ros.models.policy import load_policy
 from m2h_ros.models.separator import SeparatorConfig
 from m2h_ros.paths import REPO_DIR
-from m2h_ros.training.ppo import PPOConfig, PPOTrainer, gae, train
+from m2h_ros.training.ppo import PPOTrainer, gae, train
+from m2h_ros.training.ppo_config import PPOConfig
 from m2h_ros.training.ppo_cli import build_parser, config_from_args
 from m2h_ros.training.rewards import QUALITY_REWARDS, QualityTracker, nmse, quality_measure, quality_reward
 from m2h_ros.training.teacher import teacher_probabilities
