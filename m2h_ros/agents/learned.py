@@ -71,8 +71,8 @@ def default_policy_path(kind: str) -> Path:
 # The shipped pi^Q, pi^N and approach policy come from scripts/train_shipped.sh (their recipes); the rest from
 # PPO's defaults.
 SHIPPED_RECIPES = {"quality": ("scripts/train_shipped.sh quality", "runs/policy_quality/stage2/policy.pt"),
-                   "navigation": ("THREADS=1 scripts/train_shipped.sh navigation", "runs/policy_navigation/stage12/policy.pt"),
-                   "approach": ("THREADS=1 scripts/train_shipped.sh approach", "runs/policy_approach/policy.pt")}
+                   "navigation": ("scripts/train_shipped.sh navigation", "runs/policy_navigation/stage5/policy.pt"),
+                   "approach": ("THREADS=1 scripts/train_shipped.sh approach", "runs/policy_approach/approach/policy.pt")}
 
 
 def train_command(kind: str, destination: Path) -> str:

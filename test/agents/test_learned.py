@@ -197,8 +197,8 @@ def test_composite_needs_pi_n_only_for_far_target_episodes(tmp_path):
     with pytest.raises(CheckpointError) as error:
         controller.reset(0, start("far_target"))
     # The command in backticks, and the copy goes to the folder that lacks the file, not the shipped folder.
-    assert str(error.value) == (f"navigation policy checkpoint {missing} not found; train it with `THREADS=1 "
-                                "scripts/train_shipped.sh navigation`, then copy runs/policy_navigation/stage12/policy.pt "
+    assert str(error.value) == (f"navigation policy checkpoint {missing} not found; train it with "
+                                "`scripts/train_shipped.sh navigation`, then copy runs/policy_navigation/stage5/policy.pt "
                                 f"to {missing}")
 
 

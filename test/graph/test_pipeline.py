@@ -106,8 +106,9 @@ def test_scores_equal_the_in_process_run(tiny_run, small_library, small_data_dir
     assert_equals_in_process(out, {**TINY_SIM, "num_episodes": 2}, CONTROLLER, 7, small_library)
 
 
-# Far-target: tiny episode 10 is one the shipped pi^N + Stop ends with Stop, on the target's node (stages 9 and 12),
-# so the Stop's path through the graph is exercised; a retrained pi^N may need another episode here.
+# Far-target: tiny episode 10 is one the shipped pi^N + Stop ends with Stop, on the target's node (stage 5 from pi^Q;
+# the twelve-stage chain's stages 9 and 12 too), so the Stop's path through the graph is exercised; a retrained pi^N
+# may need another episode here.
 @pytest.mark.parametrize("task, first", [("near_target", 0), ("far_target", 10)])
 def test_the_default_controller_is_move2hear_and_acts_as_in_process(task, first, small_library, small_data_dir,
                                                                     tmp_path, monkeypatch):

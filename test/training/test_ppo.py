@@ -107,22 +107,25 @@ def test_the_shipped_recipes_read_from_their_files(monkeypatch, capsys):
     assert "no_such_recipe.args" in capsys.readouterr().err
 
 
-def test_the_shipped_pi_n_is_the_twelfth_stage_of_train_shipped_navigation(monkeypatch):
+def test_the_shipped_pi_n_is_the_fifth_stage_of_train_shipped_navigation(monkeypatch):
     monkeypatch.chdir(REPO_DIR)
-    # scripts/train_shipped.sh navigation's stage 12, as its command line reads (seed = stage - 3)
-    stage12 = config_from_args(build_parser().parse_args(
+    # scripts/train_shipped.sh navigation's stage 5, as its command line reads (seed = stage)
+    stage5 = config_from_args(build_parser().parse_args(
         ["@params/recipes/policy_navigation.args", "--threads", "2", "--scene-split", "train48", "--entropy-coef", "0.01",
-         "--seed", "9", "--init-policy", "runs/policy_navigation/stage11/policy.pt"])).to_dict()
+         "--seed", "5", "--init-policy", "runs/policy_navigation/stage4/policy.pt"])).to_dict()
     shipped = load_policy(REPO_DIR / "m2h_ros/models/default/policy_navigation.pt",
                           policy_kind="navigation").metadata["config"]
     # A field newer than the file is left at its default by the command line (shipped.get: the same value).
-    assert {name for name, value in stage12.items() if shipped.get(name, value) != value} == {"init_policy"}  # stage 11 ran elsewhere
+    assert {name for name, value in stage5.items() if shipped.get(name, value) != value} == {"init_policy"}  # stage 4 ran elsewhere
     assert (shipped["updates"], shipped["teacher_coef"], shipped["entropy_coef"]) == (1500, 1.0, 0.01)
     assert shipped["episodes"]["scene_split"] == "train48"
     script = (REPO_DIR / "scripts" / "train_shipped.sh").read_text()
-    assert "for stage in 5 6 7 8 9 10 11 12; do" in script and "else split=train48 threads=2; fi" in script
-    assert '--threads "$threads" --scene-split "$split" --entropy-coef 0.01' in script
-    assert "--seed $((stage - 3))" in script and "cp OUT/stage12/policy.pt" in script
+    assert "init=m2h_ros/models/default/policy_quality.pt\n    for stage in 1 2 3 4 5; do" in script
+    assert '--threads "$THREADS" --scene-split train48 --entropy-coef 0.01 \\\n            --seed "$stage"' in script
+    assert "cp OUT/stage5/policy.pt m2h_ros/models/default/policy_navigation.pt" in script
+    # The approach policy starts where it did: pi^N + Stop's first two stages, the recipe alone (shipped before session 24).
+    assert ('--init-policy "$OUT/navigation_stage1/policy.pt" \\\n        --out "$OUT/navigation_stage2"' in script
+            and '--init-policy "$OUT/navigation_stage2/policy.pt" \\\n        --out "$OUT/approach"' in script)
 
 
 def test_train_shipped_names_its_kinds():
