@@ -1,4 +1,5 @@
-"""What this machine's cores are free for right now, for benchmarks to print beside their figures.
+"""What this machine is (:func:`machine_description`, recorded beside a training run's wall times) and what
+its cores are free for right now, for benchmarks to print beside their figures.
 
 On a shared machine a throughput figure says as much as the cores were free. The load average does
 not tell it all: with the kernel's autogroup scheduling (``/proc/sys/kernel/sched_autogroup_enabled``)
@@ -10,12 +11,30 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import platform
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 AUTOGROUP = Path("/proc/sys/kernel/sched_autogroup_enabled")
+
+
+def machine_description() -> dict[str, Any]:
+    """CPU model and count, platform, Python and torch versions (wall times mean little without them)."""
+    import torch  # here, not at the top: the benches that only measure cores need no torch
+
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu_model": model, "cpu_count": os.cpu_count(), "platform": platform.platform(),
+            "python": platform.python_version(), "torch": str(torch.__version__)}
 
 
 def _spin(queue) -> None:

@@ -93,10 +93,10 @@ from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separat
 from m2h_ros.models.policy import (PolicyInputs, PolicyNet, policy_input_buffers,  # noqa: E402
                                    load_policy, policy_inputs, save_policy, sliced_policy_inputs, warm_start)
 from m2h_ros.models.runner import SeparationStep, SeparatorRunner  # noqa: E402
+from m2h_ros.machine import machine_description  # noqa: E402
 from m2h_ros.paths import repo_relative  # noqa: E402
 from m2h_ros.training.rewards import PendingQuality, QualityTracker  # noqa: E402
 from m2h_ros.training.distributed import all_reduce_mean, all_reduce_sum, init_distributed  # noqa: E402
-from m2h_ros.training.machine import machine_description  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.ppo_config import PPOConfig  # noqa: E402
 from m2h_ros.training.location import location_head, location_loss, target_offsets  # noqa: E402

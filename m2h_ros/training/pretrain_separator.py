@@ -64,8 +64,8 @@ from m2h_ros.errors import CheckpointError, ConfigError, reports_errors  # noqa:
 from m2h_ros.models.device import DEVICES, check_device, resolve_device
 from m2h_ros.models.checkpoint import PRETRAINED_SEPARATOR_CHECKPOINT, load_separator, save_separator  # noqa: E402
 from m2h_ros.models.separator import BACKBONES, PRESET_NAMES, Separator, SeparatorConfig, count_parameters  # noqa: E402
+from m2h_ros.machine import machine_description  # noqa: E402
 from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
-from m2h_ros.training.machine import machine_description  # noqa: E402
 from m2h_ros.training.plots import save_panels, two_panels  # noqa: E402
 from m2h_ros.training.separator_data import (  # noqa: E402
     BatchSource,
