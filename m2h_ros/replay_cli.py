@@ -20,7 +20,7 @@ from pathlib import Path
 
 from m2h_ros.core.results import markdown_table, summarize
 from m2h_ros.errors import BagError, ConfigError
-from m2h_ros.io.replay import BagReplay, ReplayConfig, replay_bag, write_replay
+from m2h_ros.io.replay import BagReplay, ReplayConfig, replay_bags, write_replay
 
 EXIT_MISMATCH, EXIT_FATAL, EXIT_PROBLEMS = 1, 2, 3
 
@@ -36,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"tolerance of replayed vs live scores (default: {defaults.atol:g})")
     parser.add_argument("--threads", type=int, default=defaults.score_threads,
                         help=f"threads scoring each batch of steps (same numbers; default: {defaults.score_threads})")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="bags replayed at once, one process each (same output; default: 1)")
     parser.add_argument("--no-plots", action="store_true", help="write tables only")
     return parser
 
@@ -48,16 +50,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         config = ReplayConfig(namespace=args.namespace, atol=args.atol, score_threads=args.threads)
+        if args.workers < 1:
+            raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     except ConfigError as exc:
         print(f"m2h-eval: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FATAL
     replays: list[BagReplay] = []
     unreadable = 0
-    for bag in args.bags:
-        try:
-            replay = replay_bag(bag, config=config)
-        except BagError as exc:
-            print(f"m2h-eval: error: {_one_line(exc)}", file=sys.stderr)
+    for bag, replay in zip(args.bags, replay_bags(args.bags, config=config, workers=args.workers), strict=True):
+        if isinstance(replay, BagError):
+            print(f"m2h-eval: error: {_one_line(replay)}", file=sys.stderr)
             unreadable += 1
             continue
         replays.append(replay)

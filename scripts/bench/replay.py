@@ -1,7 +1,7 @@
 """Replay scoring rate (m2h-eval's core) vs a bare rosbags read of the same bag, and its peak memory on
 a bag 10x longer.
 
-    python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH] [--threads]
+    python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH] [--threads] [--workers]
 
 Writes a synthetic recorded run (m2h_ros.io.synthetic: every pipeline topic, camera included, arrays of
 the pipeline's sizes) of EPISODES x (STEPS + 1) observations and one 10x longer, or uses --bag (then
@@ -12,7 +12,10 @@ cases interleaved REPEATS times; the figures are the median and the min-max spre
 * bare read + decode: the same, deserialising the topics replay needs (rosbags' typestore);
 * replay: :func:`m2h_ros.io.replay.replay_bag` (stream, decode, group, score, compare with live);
 * replay x2 (``--threads``): the same with ``ReplayConfig(score_threads=2)``: two cores, where the bare
-  read uses one (compare CPU time too).
+  read uses one (compare CPU time too);
+* 2 bags, 2 procs (``--workers``): the bag replayed twice at once by
+  :func:`m2h_ros.io.replay.replay_bags` with ``workers=2`` (``m2h-eval --workers 2``), two child processes;
+  its steps/s count both copies' steps (CPU includes the children's).
 
 Reports steps/s and MB/s (bag bytes / wall time), CPU ms per step (the process's user + system time:
 less sensitive to the machine's load than wall time), minor page faults per step, the replay / bare-read ratios of both (target
@@ -43,8 +46,8 @@ def bag_bytes(bag: Path) -> int:
 
 
 def _cpu_seconds() -> float:
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    return usage.ru_utime + usage.ru_stime
+    """This process's CPU time and that of its children waited for."""
+    return sum(u.ru_utime + u.ru_stime for u in map(resource.getrusage, (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)))
 
 
 def _time_parts() -> dict[str, float]:
@@ -91,7 +94,7 @@ def child(mode: str, bag: Path) -> dict:
     from rosbags.rosbag2 import Reader
 
     from m2h_ros.io.msg_defs import typestore
-    from m2h_ros.io.replay import EXPECTED_TYPES, ReplayConfig, replay_bag
+    from m2h_ros.io.replay import EXPECTED_TYPES, BagReplay, ReplayConfig, replay_bag, replay_bags
 
     store = typestore()
     wanted = {ReplayConfig().topic(name) for name in EXPECTED_TYPES}
@@ -103,6 +106,10 @@ def child(mode: str, bag: Path) -> dict:
         replay = replay_bag(bag, config=ReplayConfig(score_threads=2) if mode == "replay x2" else ReplayConfig())
         steps = replay.steps_scored
         assert replay.ok, [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
+    elif mode == WORKERS:
+        replays = list(replay_bags([bag, bag], workers=2))
+        assert all(isinstance(r, BagReplay) and r.ok for r in replays), replays
+        steps = sum(r.steps_scored for r in replays)
     else:
         with Reader(bag) as reader:
             for connection, _, data in reader.messages():
@@ -113,7 +120,11 @@ def child(mode: str, bag: Path) -> dict:
     seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
     return {"seconds": seconds, "cpu_seconds": cpu, "steps": steps, "parts": parts, "page_faults": faults,
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+            "peak_rss_mb": max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+            / 1024}
+
+
+WORKERS = "2 bags, 2 procs"
 
 
 def measure(mode: str, bag: Path) -> dict:
@@ -134,6 +145,8 @@ def main() -> None:
     parser.add_argument("--bag", type=Path, default=None, help="an existing bag instead of synthetic ones")
     parser.add_argument("--threads", action="store_true",
                         help="also replay with ReplayConfig(score_threads=2) (a second core scores)")
+    parser.add_argument("--workers", action="store_true",
+                        help="also replay two copies of the bag at once in two processes (m2h-eval --workers 2)")
     parser.add_argument("--child", nargs=2, metavar=("MODE", "BAG"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -156,7 +169,8 @@ def main() -> None:
                 write_synthetic_run(bags[name], SyntheticRun(episodes=episodes, max_steps=args.steps))
                 print(f"wrote {name} bag: {episodes} episodes x {args.steps + 1} observations, "
                       f"{bag_bytes(bags[name]) / 1e6:.0f} MB in {time.perf_counter() - start:.1f} s")
-        modes = ("bare", "bare+decode", "replay") + (("replay x2",) if args.threads else ())
+        modes = ("bare", "bare+decode", "replay") + (("replay x2",) if args.threads else ()) \
+            + ((WORKERS,) if args.workers else ())
         runs = {(b, m): [] for b in bags for m in modes}
         for _ in range(args.repeats):
             for b in bags:
@@ -170,16 +184,18 @@ def main() -> None:
                   f"{'peak RSS MB':>22s}")
             for m in modes:
                 secs = [r["seconds"] for r in runs[b, m]]
-                cpu = [r["cpu_seconds"] / steps * 1e3 for r in runs[b, m]]
-                faults = [r["page_faults"] / steps for r in runs[b, m]]
-                print(f"  {m:12s} {spread([steps / s for s in secs]):>22s} {spread([size / s for s in secs]):>22s} "
+                cpu = [r["cpu_seconds"] / r["steps"] * 1e3 for r in runs[b, m]]
+                faults = [r["page_faults"] / r["steps"] for r in runs[b, m]]
+                print(f"  {m:12s} {spread([r['steps'] / s for r, s in zip(runs[b, m], secs, strict=True)]):>22s} "
+                      f"{spread([size * r['steps'] / steps / s for r, s in zip(runs[b, m], secs, strict=True)]):>22s} "
                       f"{spread(cpu, '{:.3f}'):>22s} {spread(faults, '{:.0f}'):>18s} "
                       f"{spread([r['peak_rss_mb'] for r in runs[b, m]]):>22s}")
-            for case in (m for m in modes if m.startswith("replay")):
+            for case in (m for m in modes if not m.startswith("bare")):
                 for base in ("bare", "bare+decode"):
                     pairs = list(zip(runs[b, base], runs[b, case], strict=True))
-                    ratios = [ref["seconds"] / rep["seconds"] for ref, rep in pairs]
-                    cpu_ratios = [ref["cpu_seconds"] / rep["cpu_seconds"] for ref, rep in pairs]
+                    ratios = [(rep["steps"] / rep["seconds"]) / (ref["steps"] / ref["seconds"]) for ref, rep in pairs]
+                    cpu_ratios = [(ref["cpu_seconds"] / ref["steps"]) / (rep["cpu_seconds"] / rep["steps"])
+                                  for ref, rep in pairs]
                     print(f"  {case} / {base} rate: {spread(ratios, '{:.2f}')} wall, {spread(cpu_ratios, '{:.2f}')} "
                           f"CPU (per interleaved pair; target vs bare >= 0.5)")
             split = measure("split", bag)
@@ -188,6 +204,11 @@ def main() -> None:
             print(f"  where a replay step's CPU goes (one timed run, {split['cpu_seconds'] / steps * 1e3:.3f} ms/step): "
                   f"bag walk {cpu['walk']:.3f}, decode {cpu['decode']:.3f}, scoring {cpu['score']:.3f} (its FFTs "
                   f"{cpu['fft']:.3f}), rest {rest:.3f} ms")
+            # What the exact scores' FFTs alone leave of the target (CPU ms per step).
+            bare = statistics.median(r["cpu_seconds"] / r["steps"] * 1e3 for r in runs[b, "bare"])
+            print(f"  ceiling: one core at most bare / (bare + FFTs) = {bare / (bare + cpu['fft']):.2f} of the bare "
+                  f"rate; two cores, all but the walk, decoding and FFTs free, 2 bare / (walk + decode + FFTs) = "
+                  f"{2 * bare / (cpu['walk'] + cpu['decode'] + cpu['fft']):.2f}")
         if "10x" in bags:
             short = statistics.median(r["peak_rss_mb"] for r in runs["short", "replay"])
             long = statistics.median(r["peak_rss_mb"] for r in runs["10x", "replay"])

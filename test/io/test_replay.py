@@ -299,3 +299,22 @@ def test_cli_writes_tables_plots_and_exit_codes(near_bag, tmp_path, capsys):
     assert m2h_eval([str(bag), "--out", str(tmp_path / "out4"), "--no-plots", "--threads", "2"]) == 0
     assert m2h_eval([str(bag), "--out", str(tmp_path / "out5"), "--threads", "0"]) == 2
     shutil.rmtree(killed)
+
+
+def test_workers_replay_bags_in_processes_with_the_same_output(near_bag, tmp_path, capsys):
+    bag, _ = near_bag
+    far = tmp_path / "far"
+    write_synthetic_run(far, SyntheticRun(episodes=2, max_steps=6, task="far_target", camera=False))
+    killed = killed_copy(bag, tmp_path / "killed", 0.5)
+    bags = [str(bag), str(tmp_path / "nope"), str(killed), str(far)]
+    written = {}
+    for workers in (1, 2):
+        out = tmp_path / f"out{workers}"
+        assert m2h_eval([*bags, "--out", str(out), "--no-plots", "--workers", str(workers)]) == 3
+        captured = capsys.readouterr()
+        written[workers] = [captured.out.replace(str(out), "OUT"), captured.err] + [
+            (out / name).read_text() for name in ("results.csv", "results.json", "comparison.md", "comparison.csv")]
+    assert written[1] == written[2]
+    assert "nope" in written[1][1] and written[1][0].count(" step(s) scored") == 3
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out3"), "--workers", "0"]) == 2
+    shutil.rmtree(killed)
