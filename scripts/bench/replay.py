@@ -2,6 +2,7 @@
 a bag 10x longer.
 
     python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH] [--threads] [--workers]
+                                   [--cold]
 
 Writes a synthetic recorded run (m2h_ros.io.synthetic: every pipeline topic, camera included, arrays of
 the pipeline's sizes) of EPISODES x (STEPS + 1) observations and one 10x longer, or uses --bag (then
@@ -13,9 +14,13 @@ cases interleaved REPEATS times; the figures are the median and the min-max spre
 * replay: :func:`m2h_ros.io.replay.replay_bag` (stream, decode, group, score, compare with live);
 * replay x2 (``--threads``): the same with ``ReplayConfig(score_threads=2)``: two cores, where the bare
   read uses one (compare CPU time too);
-* 2 bags, 2 procs (``--workers``): the bag replayed twice at once by
+* 2 bags, 2 procs (``--workers``): the bag and a copy of it replayed at once by
   :func:`m2h_ros.io.replay.replay_bags` with ``workers=2`` (``m2h-eval --workers 2``), two child processes;
-  its steps/s count both copies' steps (CPU includes the children's).
+  its steps/s count both bags' steps (CPU includes the children's).
+
+``--cold`` drops the page cache before every measurement (root only: it writes /proc/sys/vm/drop_caches), so
+each case reads the bag from disk, as a recording scored once after it was written out of memory does; by
+default every case after the first reads it from memory, the stricter comparison.
 
 Reports steps/s and MB/s (bag bytes / wall time), CPU ms per step (the process's user + system time:
 less sensitive to the machine's load than wall time), minor page faults per step, the replay / bare-read ratios of both (target
@@ -31,6 +36,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -89,7 +95,7 @@ def _time_parts() -> dict[str, float]:
     return totals
 
 
-def child(mode: str, bag: Path) -> dict:
+def child(mode: str, bag: Path, *others: Path) -> dict:
     """One measurement in this (fresh) process."""
     from rosbags.rosbag2 import Reader
 
@@ -107,7 +113,7 @@ def child(mode: str, bag: Path) -> dict:
         steps = replay.steps_scored
         assert replay.ok, [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
     elif mode == WORKERS:
-        replays = list(replay_bags([bag, bag], workers=2))
+        replays = list(replay_bags([bag, *others], workers=2))
         assert all(isinstance(r, BagReplay) and r.ok for r in replays), replays
         steps = sum(r.steps_scored for r in replays)
     else:
@@ -125,10 +131,20 @@ def child(mode: str, bag: Path) -> dict:
 
 
 WORKERS = "2 bags, 2 procs"
+DROP_CACHES = Path("/proc/sys/vm/drop_caches")
 
 
-def measure(mode: str, bag: Path) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--child", mode, str(bag)], check=True, capture_output=True,
+def drop_page_cache() -> None:
+    os.sync()
+    DROP_CACHES.write_text("1\n")
+
+
+def measure(mode: str, bag: Path, *, copy: Path | None = None, cold: bool = False) -> dict:
+    """One measurement in a fresh process; ``copy``: the second bag of the WORKERS case."""
+    if cold:
+        drop_page_cache()
+    bags = [str(bag)] + ([str(copy)] if mode == WORKERS else [])
+    out = subprocess.run([sys.executable, __file__, "--child", mode, *bags], check=True, capture_output=True,
                          text=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -147,12 +163,17 @@ def main() -> None:
                         help="also replay with ReplayConfig(score_threads=2) (a second core scores)")
     parser.add_argument("--workers", action="store_true",
                         help="also replay two copies of the bag at once in two processes (m2h-eval --workers 2)")
-    parser.add_argument("--child", nargs=2, metavar=("MODE", "BAG"), help=argparse.SUPPRESS)
+    parser.add_argument("--cold", action="store_true",
+                        help="drop the page cache before every measurement: read the bag from disk (root only)")
+    parser.add_argument("--child", nargs="+", metavar="MODE BAG", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(child(args.child[0], Path(args.child[1]))))
+        print(json.dumps(child(args.child[0], *map(Path, args.child[1:]))))
         return
     from m2h_ros.machine import availability_line, load_average  # here: the children time their own imports
+
+    if args.cold and not os.access(DROP_CACHES, os.W_OK):
+        parser.error(f"--cold needs to write {DROP_CACHES} (root)")
 
     print(f"load average before: {load_average()} ({os.cpu_count()} CPUs)")
     print(availability_line())
@@ -171,11 +192,14 @@ def main() -> None:
                       f"{bag_bytes(bags[name]) / 1e6:.0f} MB in {time.perf_counter() - start:.1f} s")
         modes = ("bare", "bare+decode", "replay") + (("replay x2",) if args.threads else ()) \
             + ((WORKERS,) if args.workers else ())
+        # The second bag of the WORKERS case: a copy, so that each process reads its own file.
+        copies = {b: shutil.copytree(bag, Path(tmp) / f"{b}_copy") if bag.is_dir()
+                  else shutil.copy(bag, Path(tmp) / f"{b}_copy.mcap") for b, bag in bags.items()} if args.workers else {}
         runs = {(b, m): [] for b in bags for m in modes}
         for _ in range(args.repeats):
             for b in bags:
                 for m in modes:
-                    runs[b, m].append(measure(m, bags[b]))
+                    runs[b, m].append(measure(m, bags[b], copy=copies.get(b), cold=args.cold))
         for b, bag in bags.items():
             size = bag_bytes(bag) / 1e6
             steps = runs[b, "replay"][0]["steps"]
@@ -204,6 +228,8 @@ def main() -> None:
             print(f"  where a replay step's CPU goes (one timed run, {split['cpu_seconds'] / steps * 1e3:.3f} ms/step): "
                   f"bag walk {cpu['walk']:.3f}, decode {cpu['decode']:.3f}, scoring {cpu['score']:.3f} (its FFTs "
                   f"{cpu['fft']:.3f}), rest {rest:.3f} ms")
+            if args.cold:  # the ceiling below compares CPU with a read from memory
+                continue
             # What the exact scores' FFTs alone leave of the target (CPU ms per step).
             bare = statistics.median(r["cpu_seconds"] / r["steps"] * 1e3 for r in runs[b, "bare"])
             print(f"  ceiling: one core at most bare / (bare + FFTs) = {bare / (bare + cpu['fft']):.2f} of the bare "
