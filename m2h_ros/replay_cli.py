@@ -50,14 +50,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         config = ReplayConfig(namespace=args.namespace, atol=args.atol, score_threads=args.threads)
-        if args.workers < 1:
-            raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+        in_order = replay_bags(args.bags, config=config, workers=args.workers)
     except ConfigError as exc:
         print(f"m2h-eval: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FATAL
     replays: list[BagReplay] = []
     unreadable = 0
-    for bag, replay in zip(args.bags, replay_bags(args.bags, config=config, workers=args.workers), strict=True):
+    for bag, replay in zip(args.bags, in_order, strict=True):
         if isinstance(replay, BagError):
             print(f"m2h-eval: error: {_one_line(replay)}", file=sys.stderr)
             unreadable += 1

@@ -503,7 +503,10 @@ def replay_bags(paths: Iterable[str | Path], *, config: ReplayConfig = ReplayCon
     seconds): the same replays as one worker, in the same order."""
     if workers < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
-    paths = [Path(p) for p in paths]
+    return _replays_in_order([Path(p) for p in paths], config, workers)
+
+
+def _replays_in_order(paths: list[Path], config: ReplayConfig, workers: int) -> Iterator[BagReplay | BagError]:
     if workers == 1 or len(paths) < 2:
         yield from (_replay_or_error(p, config) for p in paths)
         return
