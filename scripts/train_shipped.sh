@@ -23,7 +23,8 @@
 #               pi^N + Stop's first two stages as shipped before session 24 (policy_navigation_stage2.pt: 1,500
 #               updates each on the 12 train scenes, the kind's entropy 0.2, stage 2 from stage 1's weights), then
 #               2,000 updates (640,000 env steps) on the 24 scenes of split train24, entropy 0.02, kickstarted by
-#               the approach teacher; the last stage about 40 min with THREADS=1, as it ran.
+#               the approach teacher; the last stage about 40 min with THREADS=1, as it ran; the whole
+#               command 1 h 09 min with THREADS=2 (session 32; other weights, as good on validation).
 #
 #     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality; THREADS=1 ... for one thread
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_quality.pt
