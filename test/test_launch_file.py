@@ -1,21 +1,185 @@
-"""The launch file (for machines with `ros2 launch`, which this venv lacks) parses, starts every
-node of the pipeline with its params file, and is installed with the package."""
+"""The launch file (for machines with `ros2 launch`, which this venv lacks) starts every node of the
+pipeline with its own params file and overrides its config dataclass accepts, uses the arguments it
+declares, ends the run with the simulator, and is installed with the package.
 
-import ast
+`launch`, `launch_ros` and the package index are stood in for at the import boundary: each class the
+file imports records what it was built with, and the description generate_launch_description()
+returns is inspected. Substitutions are performed and parameter values typed as launch_ros does
+(a substituted string is read as YAML), so an override the node would reject fails here.
+"""
+
+import importlib.util
+import os
+import sys
+import types
 from pathlib import Path
+
+import pytest
+import yaml
+
+from m2h_ros.node_configs import (PIPELINE_NODES, ControllerConfig, EvaluatorConfig, RecorderConfig,
+                                  SeparatorNodeConfig, SimConfig)
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "launch" / "pipeline.launch.py"
+CONFIGS = {"sim_node": SimConfig, "separator_node": SeparatorNodeConfig, "controller_node": ControllerConfig,
+           "evaluator_node": EvaluatorConfig, "recorder_node": RecorderConfig}
+STOOD_IN = ("launch", "launch.actions", "launch.conditions", "launch.event_handlers", "launch.events",
+            "launch.substitutions", "launch_ros", "launch_ros.actions", "launch_ros.substitutions")
 
 
-def test_launch_file_starts_every_node_with_its_params():
-    tree = ast.parse(LAUNCH.read_text())
-    functions = {node.name for node in ast.walk(tree) if isinstance(node, ast.FunctionDef)}
-    assert "generate_launch_description" in functions
-    nodes = next(node for node in ast.walk(tree) if isinstance(node, ast.Assign)
-                 and getattr(node.targets[0], "id", "") == "NODES")
-    names = {element.value for element in nodes.value.elts}
-    assert names == {p.stem for p in (ROOT / "params").glob("*.yaml")}
-    for name in names:
-        assert (ROOT / "m2h_ros" / "nodes" / f"{name}.py").is_file()
+class Entity:
+    """Any launch class: remembers the arguments it was built with."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(*{self.args}, **{self.kwargs})"
+
+
+def stand_in(module_name: str) -> types.ModuleType:
+    module, classes = types.ModuleType(module_name), {}
+
+    def entity_class(name: str) -> type:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return classes.setdefault(name, type(name, (Entity,), {"__module__": module_name}))
+
+    module.__getattr__ = entity_class
+    return module
+
+
+def entities(value) -> list[Entity]:
+    """Every Entity reachable from ``value`` through arguments, lists and dicts, each once."""
+    found = {}
+    stack = [value]
+    while stack:
+        value = stack.pop()
+        if isinstance(value, Entity):
+            if id(value) in found:
+                continue
+            found[id(value)] = value
+            value = [*value.args, *value.kwargs.values()]
+        if isinstance(value, dict):
+            value = [*value.keys(), *value.values()]
+        if isinstance(value, list | tuple):
+            stack.extend(reversed(value))
+    return list(found.values())
+
+
+def of_kind(description: Entity, kind: str) -> list[Entity]:
+    return [e for e in entities(description) if type(e).__name__ == kind]
+
+
+def argument(entity: Entity, position: int, name: str):
+    return entity.args[position] if len(entity.args) > position else entity.kwargs[name]
+
+
+@pytest.fixture
+def description(monkeypatch) -> Entity:
+    for name in STOOD_IN:
+        monkeypatch.setitem(sys.modules, name, stand_in(name))
+    index = types.ModuleType("ament_index_python.packages")
+    index.get_package_share_directory = {"m2h_ros": str(ROOT)}.__getitem__  # the source tree's params/
+    monkeypatch.setitem(sys.modules, "ament_index_python.packages", index)
+    spec = importlib.util.spec_from_file_location("pipeline_launch", LAUNCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.generate_launch_description()
+
+
+@pytest.fixture
+def defaults(description) -> dict[str, str]:
+    return {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(description, "DeclareLaunchArgument")}
+
+
+def nodes(description) -> dict[str, Entity]:
+    found = {node.kwargs["name"]: node for node in of_kind(description, "Node")}
+    assert len(found) == len(of_kind(description, "Node")), "two nodes share a name"
+    return found
+
+
+def perform(value, defaults: dict[str, str]) -> str:
+    """The string a substitution (or a list of them, concatenated) gives with the arguments' defaults."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, list | tuple):
+        return "".join(perform(v, defaults) for v in value)
+    if type(value).__name__ == "LaunchConfiguration":
+        name = argument(value, 0, "variable_name")
+        assert name in defaults, f"LaunchConfiguration({name!r}) has no DeclareLaunchArgument"
+        return perform(defaults[name], defaults)
+    if type(value).__name__ == "TextSubstitution":
+        return value.kwargs["text"]
+    raise AssertionError(f"this test cannot perform {value!r}: teach perform() what it gives")
+
+
+def parameter_value(value, defaults: dict[str, str]):
+    """The typed value the node receives (launch_ros: a list of plain values is an array parameter,
+    anything holding a substitution is one string, and a string is read as YAML)."""
+    if isinstance(value, bool | int | float):
+        return value
+    if isinstance(value, list | tuple) and not any(isinstance(v, Entity) for v in value):
+        return tuple(value)
+    text = perform(value, defaults)
+    loaded = yaml.safe_load(text)
+    if loaded is None:
+        return ""
+    return loaded if type(loaded) in (bool, int, float, str) else text
+
+
+def resolved_config(node: Entity, defaults: dict[str, str]):
+    """The node's config as ROS would give it: its params file, then each override dict in order."""
+    name = node.kwargs["name"]
+    assert name in CONFIGS, f"{name}: a node this test knows no config dataclass of"
+    files = [p for p in node.kwargs["parameters"] if isinstance(p, str | Path)]
+    config = CONFIGS[name].from_yaml(files[0], name)
+    for overrides in (p for p in node.kwargs["parameters"] if isinstance(p, dict)):
+        config = config.replace(**{key: parameter_value(v, defaults) for key, v in overrides.items()})
+    return config
+
+
+def test_every_node_starts_with_its_own_params_file(description):
+    started = nodes(description)
+    assert set(started) == {p.stem for p in (ROOT / "params").glob("*.yaml")}
+    for name, node in started.items():
+        assert node.kwargs["package"] == "m2h_ros" and node.kwargs["executable"] == name
+        files = [p for p in node.kwargs["parameters"] if isinstance(p, str | Path)]
+        assert [os.path.normpath(p) for p in files] == [str(ROOT / "params" / f"{name}.yaml")], name
+        CONFIGS[name].from_yaml(files[0], name)  # its section loads into its own dataclass
+
+
+def test_every_override_is_a_typed_field_of_its_nodes_config(description, defaults):
+    overridden = set()
+    for name, node in nodes(description).items():
+        for overrides in (p for p in node.kwargs["parameters"] if isinstance(p, dict)):
+            for key, value in overrides.items():
+                # replace() names an unknown field; __post_init__ a wrong type, range or choice.
+                config = resolved_config(node, defaults)
+                assert getattr(config, key) == parameter_value(value, defaults), (name, key)
+                overridden.add(f"{name}.{key}")
+    assert {"sim_node.num_episodes", "sim_node.task", "controller_node.policy"} <= overridden
+
+
+def test_every_declared_argument_is_used_and_every_used_one_declared(description, defaults):
+    used = {argument(c, 0, "variable_name") for c in of_kind(description, "LaunchConfiguration")}
+    assert used == set(defaults)
+    started = nodes(description)
+    sim = resolved_config(started["sim_node"], defaults)
+    assert sim.num_episodes == int(defaults["episodes"]) and sim.task == defaults["task"]
+    assert resolved_config(started["controller_node"], defaults).policy == defaults["controller"]
+
+
+def test_the_simulator_waits_for_every_node_and_its_exit_ends_the_run(description, defaults):
+    started = nodes(description)
+    sim = resolved_config(started["sim_node"], defaults)
+    assert set(sim.expect_nodes) == set(started) & set(PIPELINE_NODES)
+    ending = [h for h in of_kind(description, "OnProcessExit")
+              if h.kwargs.get("target_action") in (None, started["sim_node"])
+              and any(type(e).__name__ == "Shutdown" for e in of_kind(h, "Shutdown"))]
+    assert ending, "nothing shuts the launch down when the simulator exits"
+
+
+def test_the_launch_file_is_installed_with_the_package():
     assert 'glob("launch/*.launch.py")' in (ROOT / "setup.py").read_text()

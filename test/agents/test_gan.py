@@ -8,12 +8,12 @@ import pytest
 import torch
 
 from m2h_ros.agents.base import EpisodeStart
-from m2h_ros.agents.gan import GanEtAl, OccupancyMap
+from m2h_ros.agents.gan import GanEtAl, OccupancyMap, move_toward
 from m2h_ros.agents.registry import make_controller
 from m2h_ros.agents.rollout import controller_observation
 from m2h_ros.core.world.camera import CameraConfig, SceneRenderer
 from m2h_ros.core.world.env import BatchEnv
-from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT
+from m2h_ros.core.world.episodes import MOVE_FORWARD, STOP, TURN_LEFT, TURN_RIGHT
 from m2h_ros.core.world.navgrid import HEADING_STEPS, heading_index
 from m2h_ros.errors import CheckpointError
 from m2h_ros.models.locator import LocatorOutput, SoundLocator, load_locator, relative_offset, save_locator
@@ -108,4 +108,18 @@ def test_it_builds_from_the_registry_and_names_a_missing_locator(tmp_path, locat
     assert load_locator(locator_path).config == controller.locator.config
     with pytest.raises(CheckpointError, match="train_locator.py"):
         make_controller("gan_et_al", 1, checkpoint=str(tmp_path / "none.pt"))
-    assert {MOVE_FORWARD, TURN_LEFT}  # the planner's moves are environment actions
+
+
+# What the environment's turns do to the heading (BatchEnv.step: left = +1 quarter turn, right = -1).
+TURNED = {TURN_LEFT: +1, TURN_RIGHT: -1}
+
+
+@pytest.mark.parametrize("start", range(4))
+@pytest.mark.parametrize("wanted", range(4))
+def test_the_planner_turns_the_short_way_toward_the_wanted_heading(start, wanted):
+    heading, turns = start, 0
+    while (action := move_toward(heading, wanted)) != MOVE_FORWARD:
+        assert action in TURNED and turns < 4, (start, wanted, heading)
+        heading, turns = (heading + TURNED[action]) % 4, turns + 1
+    assert heading == wanted  # it moves forward only once facing the way the plan goes
+    assert turns == min((wanted - start) % 4, (start - wanted) % 4)  # never three turns for one

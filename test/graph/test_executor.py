@@ -8,7 +8,7 @@ import time
 import pytest
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402
 from rcl_interfaces.srv import GetParameters  # noqa: E402
 from rclpy.event_handler import SubscriptionEventCallbacks  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402

@@ -4,10 +4,9 @@ import dataclasses
 
 import pytest
 
-pytest.importorskip("rclpy")
-from m2h_ros.core.world.episodes import DEFAULT_MAX_STEPS  # noqa: E402
-from m2h_ros.node_configs import SimConfig  # noqa: E402
-from m2h_ros.ros.qos import LATCHED, STEP  # noqa: E402
+from m2h_ros.core.world.episodes import DEFAULT_MAX_STEPS
+from m2h_ros.node_configs import SimConfig
+from m2h_ros.ros.qos import LATCHED, STEP
 
 pytestmark = pytest.mark.graph
 

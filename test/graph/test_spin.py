@@ -6,7 +6,6 @@ import os
 import pytest
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-rclpy = pytest.importorskip("rclpy")
 from rclpy.node import Node  # noqa: E402
 
 from m2h_ros.ros.spin import run_node  # noqa: E402

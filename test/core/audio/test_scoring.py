@@ -17,8 +17,13 @@ def _truth(rng):
 
 
 def test_the_deployable_reference_is_the_ear_mean_of_the_target_as_heard():
+    # Two episodes of hand-made ears whose mean is known: 2 everywhere, then -1 everywhere; neither ear
+    # nor the dry clip (zeros) equals it.
+    ramp = np.arange(8, dtype=np.float32)
+    ears = np.stack([np.stack([2 + ramp, 2 - ramp]), np.stack([np.full(8, 3.0), np.full(8, -5.0)])])
+    truth = StepTruth(target_monaural=np.zeros((2, 8), np.float32), target_binaural=ears.astype(np.float32))
+    np.testing.assert_array_equal(deployable_reference(truth), [[2.0] * 8, [-1.0] * 8])
     truth = _truth(np.random.default_rng(0))
-    np.testing.assert_allclose(deployable_reference(truth), truth.target_binaural.mean(axis=1))
     with pytest.raises(AudioError, match="target_binaural"):
         deployable_reference(StepTruth(truth.target_monaural, truth.target_binaural[:, 0]))
 

@@ -44,7 +44,8 @@ def test_default_preset_shape(scenes):
 
 
 def test_materials_exist_in_pyroomacoustics(scenes):
-    pra = pytest.importorskip("pyroomacoustics")
+    import pyroomacoustics as pra
+
     used = {m for s in scenes for r in s.rooms for m in (r.wall_material, r.floor_material,
                                                           r.ceiling_material)}
     used |= {o.material for s in scenes for o in s.obstacles}
