@@ -4,7 +4,7 @@ final-step score on the same episodes, mean and 95% CI per task and sound split 
 ``spl``: far-target navigation's, episode by episode: a paired SR / SPL difference). No episode is played
 again.
 
-    python scripts/paired.py docs/results/near_target_all/results.csv --reference doa,stand_in_place \
+    python scripts/paired.py docs/results/near_target/results.csv --reference doa,stand_in_place \
         [--metric si_sdr|si_sdr_mixture_phase|stft_distance|success|spl] [--out paired.md] [--png paired.png]
     python scripts/paired.py shipped/results.json candidate/results.json --tags shipped,candidate \
         --reference move2hear:shipped

@@ -2,7 +2,7 @@
 """Summary of PPO training runs from their log.csv (one row per update): env steps, the rate of the
 updates (median, and of the first and last 100), and the mean of a few figures over the last updates.
 
-    python scripts/run_summary.py docs/results/policy_quality_command_s17/stage1 docs/results/policy_quality_command_s17/stage2 [--last 250]
+    python scripts/run_summary.py docs/results/training/policy_quality/stage1 docs/results/training/policy_quality/stage2 [--last 250]
 
 A run directory or its log.csv. A figure the run's kind does not log (empty or nan) prints as "-".
 """

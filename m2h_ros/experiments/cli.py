@@ -30,7 +30,7 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
                controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target",
                sound_split: str = "heard,unheard", reference: str | None = "stand_in_place",
                condition_reference: str | None = None) -> int:
-    """Parse, run the sweep, write ``docs/results/<script stem>/`` (or --out); 2 on a clear error.
+    """Parse, run the sweep, write ``docs/results/experiments/<script stem>/`` (or --out); 2 on a clear error.
     ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository);
     ``reference`` / ``condition_reference``: the paired comparisons of :func:`write_sweep` (the reference
     controller only where the sweep plays it)."""
@@ -44,7 +44,7 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
     parser.add_argument("--workers", type=int, default=2, help="local Ray CPUs (ignored with --address)")
     parser.add_argument("--address", help="an existing Ray cluster ('auto': the one this machine is in)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
-    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / Path(script).stem)
+    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "experiments" / Path(script).stem)
     parser.add_argument("--separator", type=Path,
                         help="separator checkpoint of the conditions that name none (default: the shipped one; "
                              "m2h_ros/models/default/separator_compact_pretrained.pt re-runs a table made before "

@@ -9,7 +9,7 @@ hears the target worse than an oracle failed to find it or found it and left; wi
 controller on the same episodes, :func:`gain_by_reach` gives the final-step SI-SDR gain over it in each
 of those three groups.
 
-    python scripts/experiments/reach.py docs/results/near_target_all/results.json [--reference stand_in_place] [--out reach.md]
+    python scripts/experiments/reach.py runs/near_test/results.json [--reference stand_in_place] [--out reach.md]
 """
 
 from __future__ import annotations

@@ -1,14 +1,14 @@
 #!/usr/bin/env python3
 """Experiment 5 of the supplementary material: a stronger passive backbone (MMDenseNet-style), with and without motion.
 
-    python scripts/experiments/backbone.py [--unet docs/results/backbone/unet_equal_budget.pt]
-        [--mmdensenet docs/results/backbone/mmdensenet.pt] [--controllers stand_in_place,doa,move2hear_quality]
-        [--sound-split heard,unheard] [--count 200] [--workers 2] [--address ADDR] [--out docs/results/backbone]
+    python scripts/experiments/backbone.py [--unet runs/backbone/unet_equal_budget.pt]
+        [--mmdensenet runs/backbone/mmdensenet.pt] [--controllers stand_in_place,doa,move2hear_quality]
+        [--sound-split heard,unheard] [--count 200] [--workers 2] [--address ADDR] [--out docs/results/experiments/backbone]
 
 Three separators, each a condition: the shipped compact U-Net (``m2h_ros/models/default``), a compact
 U-Net trained with the experiment's smaller budget, and the MMDenseNet-style separator trained with
-the same budget, seed and data stream (``docs/separator_training.md``; the commands are in
-docs/experiments.md). Each controller plays the first ``--count`` near-target test episodes of each
+the same budget, seed and data stream (``docs/separator_training.md``; the commands that
+train them: docs/results/experiments/backbone/README.md). Each controller plays the first ``--count`` near-target test episodes of each
 sound split with each separator: Stand In-Place (no motion), DoA (the best training-free mover)
 and the shipped pi^Q (trained on the shipped separator's outputs). The report adds every controller's
 paired difference to Stand In-Place, and every separator's to the equal-budget U-Net. The paper's
@@ -26,7 +26,7 @@ from m2h_ros.experiments.sweep import Condition  # noqa: E402
 from m2h_ros.models.checkpoint import load_separator  # noqa: E402
 from m2h_ros.paths import REPO_DIR  # noqa: E402
 
-RESULTS = REPO_DIR / "docs" / "results" / "backbone"
+TRAINED = REPO_DIR / "runs" / "backbone"
 EQUAL_BUDGET_UNET = "U-Net, equal budget"
 
 
@@ -45,9 +45,9 @@ def conditions(args):
 
 
 def add_arguments(parser):
-    parser.add_argument("--unet", type=Path, default=RESULTS / "unet_equal_budget.pt",
+    parser.add_argument("--unet", type=Path, default=TRAINED / "unet_equal_budget.pt",
                         help="the U-Net trained with the experiment's budget")
-    parser.add_argument("--mmdensenet", type=Path, default=RESULTS / "mmdensenet.pt",
+    parser.add_argument("--mmdensenet", type=Path, default=TRAINED / "mmdensenet.pt",
                         help="the MMDenseNet-style separator trained with the same budget")
 
 

@@ -3,7 +3,7 @@
 played again): mean geodesic distance to the target's node at the start, halfway and at the end, and the
 share of episodes that end on it or were on it at some step (``m2h_ros/experiments/reach.py``).
 
-    python scripts/experiments/reach.py docs/results/policy_quality_refiner_s18/near_target_all/results.json [--reference stand_in_place] [--out reach.md] [--png reach.png]
+    python scripts/experiments/reach.py runs/near_test/results.json [--reference stand_in_place] [--out reach.md] [--png reach.png]
     python scripts/experiments/reach.py shipped/results.json candidate/results.json --tags shipped,candidate
 
 Results of ``scripts/evaluate.py``, the evaluator node, ``m2h-eval`` or the experiments, for episodes made
