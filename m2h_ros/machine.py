@@ -37,12 +37,17 @@ def machine_description() -> dict[str, Any]:
             "python": platform.python_version(), "torch": str(torch.__version__)}
 
 
-def _spin(queue) -> None:
-    """A fixed numpy workload (~0.1 s on one core); puts its wall-clock seconds."""
+def reference_seconds() -> float:
+    """Wall-clock seconds of a fixed numpy workload (~0.1 s on one free core): a benchmark divides its
+    figure by this, measured in the same run, so machines and loads compare."""
     start, values = time.perf_counter(), np.ones(1 << 20, np.float32)
     for _ in range(300):
         np.sqrt(values, out=values)
-    queue.put(time.perf_counter() - start)
+    return time.perf_counter() - start
+
+
+def _spin(queue) -> None:
+    queue.put(reference_seconds())
 
 
 def cores_available() -> float:

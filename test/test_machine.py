@@ -1,15 +1,36 @@
 """The benchmarks' measure of free cores."""
 
-import os
+import multiprocessing
+import time
 
 from m2h_ros import machine
 
+# Held by whichever worker is "on the core": stands in for two processes sharing one busy core.
+ONE_CORE = multiprocessing.get_context("fork").Lock()
 
-def test_cores_available_is_a_share_of_the_cpus():
-    cores = machine.cores_available()
-    # Two processes of the same work get at most all CPUs (plus timing noise) and at least one's worth
-    # shared: on one busy core the pair takes twice as long as one, which reads 1.0.
-    assert 0.3 < cores <= min(os.cpu_count(), 2) * 1.25
+
+def _waits(queue) -> None:
+    """A workload that needs no CPU: two of them take as long as one, whatever the machine's load."""
+    start = time.perf_counter()
+    time.sleep(0.2)
+    queue.put(time.perf_counter() - start)
+
+
+def _waits_for_the_core(queue) -> None:
+    start = time.perf_counter()
+    with ONE_CORE:
+        time.sleep(0.2)
+    queue.put(time.perf_counter() - start)
+
+
+def test_two_workers_that_run_side_by_side_read_two_cores(monkeypatch):
+    monkeypatch.setattr(machine, "_spin", _waits)
+    assert 1.6 < machine.cores_available() < 2.4
+
+
+def test_two_workers_that_share_one_core_read_one(monkeypatch):
+    monkeypatch.setattr(machine, "_spin", _waits_for_the_core)
+    assert 0.8 < machine.cores_available() < 1.2  # started one after the other, they would read 2.0
 
 
 def test_the_line_names_the_scheduler(monkeypatch, tmp_path):

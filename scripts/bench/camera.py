@@ -1,4 +1,5 @@
-"""Camera render cost: cold render per view, and warm batches of 16 views from the view cache.
+"""Camera render cost: cold render per view, and warm batches of 16 views from the view cache, beside a
+fixed numpy workload timed in the same run (m2h_ros.machine.reference_seconds) and the load.
 
     python scripts/bench/camera.py [--size 128] [--scenes 3]
 """
@@ -10,8 +11,9 @@ import time
 
 import numpy as np
 
-from m2h_ros.core.world.camera import CameraConfig, CameraViews  # noqa: E402
-from m2h_ros.core.world.scene import load_split  # noqa: E402
+from m2h_ros.core.world.camera import CameraConfig, CameraViews
+from m2h_ros.core.world.scene import load_split
+from m2h_ros.machine import availability_line, load_average, reference_seconds
 
 
 def main() -> None:
@@ -21,6 +23,9 @@ def main() -> None:
     parser.add_argument("--batches", type=int, default=500, help="warm batches per scene")
     args = parser.parse_args()
     config = CameraConfig(width=args.size, height=args.size)
+    print(f"load average before: {load_average()}")
+    print(availability_line())
+    reference_ms = 1e3 * min(reference_seconds() for _ in range(3))
     rng = np.random.default_rng(0)
     cold, warm = [], []
     n_views = 0
@@ -42,6 +47,9 @@ def main() -> None:
     print(f"cold render:          {cold_ms:8.3f} ms/view  ({1e3 * np.mean(cold):.0f} ms per scene, all poses)")
     print(f"warm batch of 16:     {warm_ms:8.3f} ms/batch = {warm_ms / 16:.4f} ms/view")
     print(f"cold / warm per view: {cold_ms / (warm_ms / 16):8.1f}x")
+    print(f"reference workload:   {reference_ms:8.1f} ms (best of 3); cold view = {cold_ms / reference_ms:.4f} x, "
+          f"warm batch = {warm_ms / reference_ms:.4f} x the reference")
+    print(f"load average after: {load_average()}")
 
 
 if __name__ == "__main__":

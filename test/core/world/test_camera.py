@@ -1,6 +1,5 @@
 """Camera: depth against known geometry, door gaps and lintels, colours, config, view cache."""
 
-import time
 
 import numpy as np
 import pytest
@@ -115,7 +114,7 @@ def test_eye_above_ceiling_is_rejected():
         SceneRenderer(generate_scene(0, preset="small"), CameraConfig(eye_height=3.0))
 
 
-def test_view_cache_matches_renderer_and_is_fast_when_warm():
+def test_view_cache_matches_renderer_and_renders_each_pose_once(monkeypatch):
     scene = generate_scene(1)
     views = CameraViews(scene)
     nodes = np.arange(16) % scene.grid.n_nodes
@@ -126,9 +125,10 @@ def test_view_cache_matches_renderer_and_is_fast_when_warm():
     np.testing.assert_array_equal(rgb[5], ref_rgb)
     np.testing.assert_array_equal(depth[5], ref_depth)
     assert np.isfinite(depth).all() and (depth > 0).all()
-    start = time.perf_counter()
-    for _ in range(20):
-        views.views(nodes, headings)
-    assert (time.perf_counter() - start) / 20 < 0.05   # generous: warm batches are gathers
+    # Warm, a batch is gathered from the cache, never rendered again (its speed: scripts/bench/camera.py).
+    monkeypatch.setattr(views.renderer, "render_node", None)
+    warm_rgb, warm_depth = views.views(nodes[::-1], headings[::-1])
+    np.testing.assert_array_equal(warm_rgb, rgb[::-1])
+    np.testing.assert_array_equal(warm_depth, depth[::-1])
     with pytest.raises(ConfigError, match="heading"):
         views.views([0], [4])
