@@ -32,10 +32,12 @@ from m2h_ros.io.msg_defs import typestore as m2h_typestore
 
 MAGIC = b"\x89MCAP0\r\n"
 PROFILE = "ros2"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX, OP_DATA_END = (
+    0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0F)
 KNOWN_OPS = frozenset(range(0x01, 0x10))  # 0x10..0x7F are reserved: seeing one means corrupt bytes
 RECORD_HEAD = struct.Struct("<BQ")
 MESSAGE_HEAD = struct.Struct("<HIQQ")
+INDEX_HEAD = struct.Struct("<HI")  # message index: channel id, bytes of (log time, offset) pairs
 CHUNK_HEAD = struct.Struct("<QQQI")
 
 
@@ -123,6 +125,19 @@ class _FileState:
     schemas: dict[int, _Schema] = field(default_factory=dict)
     channels: dict[int, ChannelInfo] = field(default_factory=dict)
     undeclared: dict[int, int] = field(default_factory=dict)  # channel id -> messages skipped
+    chunks: int = 0  # chunk records met so far
+    damaged: _DamagedChunk | None = None  # the last chunk skipped, until its message indexes are read
+
+
+@dataclass
+class _DamagedChunk:
+    """A skipped chunk, named once the message index records after it tell which topics it held."""
+    number: int  # 1-based, in file order
+    start: int  # byte range of the chunk record
+    end: int
+    log_times: tuple[int, int]  # first and last message's receive time (ns), from its header
+    why: str
+    lost: dict[int, int] = field(default_factory=dict)  # channel id -> messages
 
 
 class BagStream:
@@ -210,6 +225,8 @@ class BagStream:
                                   f"kept everything before it")
                     break
                 op, length = RECORD_HEAD.unpack(head)
+                if state.damaged is not None and op != OP_MESSAGE_INDEX:
+                    self._report_damage(state)
                 if op not in KNOWN_OPS and op < 0x80:
                     self._problem(f"{path}: corrupt at byte {offset}: opcode 0x{op:02x} is not an MCAP "
                                   f"record; nothing after it can be read")
@@ -222,12 +239,15 @@ class BagStream:
                     self._problem(f"{path}: truncated at byte {offset}: a {what} of {length} bytes with "
                                   f"{size - stream.tell()} left (lost from there on)")
                     break
+                if op == OP_MESSAGE_INDEX and state.damaged is not None:
+                    self._count_lost(state, stream.read(length))
+                    continue
                 if op not in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK):
                     stream.seek(length, 1)  # indexes, attachments, metadata: not needed to stream
                     continue
                 body = memoryview(stream.read(length))
                 if op == OP_CHUNK:
-                    yield from self._chunk(state, body, offset, topics)
+                    yield from self._chunk(state, body, offset, offset + RECORD_HEAD.size + length, topics)
                     continue
                 try:
                     message = self._record(state, op, body, topics)
@@ -236,6 +256,8 @@ class BagStream:
                     continue
                 if message is not None:
                     yield message
+        if state.damaged is not None:
+            self._report_damage(state)
         self.stats.bytes += size
         for channel_id, count in state.undeclared.items():
             self._problem(f"{path}: {count} message(s) on channel {channel_id}, whose declaration was lost, skipped")
@@ -255,9 +277,12 @@ class BagStream:
         if profile != PROFILE:
             raise BagError(f"{path} is a foreign MCAP file: profile {profile!r}, not {PROFILE!r} (rosbag2)")
 
-    def _chunk(self, state: _FileState, body: memoryview, offset: int, topics) -> Iterator[RawMessage]:
+    def _chunk(self, state: _FileState, body: memoryview, offset: int, end: int, topics) -> Iterator[RawMessage]:
+        state.chunks += 1
+        log_times = (0, 0)
         try:
-            _, _, uncompressed_size, crc = CHUNK_HEAD.unpack_from(body, 0)
+            start_time, end_time, uncompressed_size, crc = CHUNK_HEAD.unpack_from(body, 0)
+            log_times = (start_time, end_time)
             compression, pos = _string(body, CHUNK_HEAD.size)
             (records_size,) = struct.unpack_from("<Q", body, pos)
             pos += 8
@@ -267,9 +292,10 @@ class BagStream:
             if len(data) != uncompressed_size:
                 raise ValueError(f"{len(data)} bytes decompressed, {uncompressed_size} declared")
             if crc and zlib.crc32(data) != crc:
-                raise ValueError("CRC mismatch")
+                raise ValueError(f"CRC-32 mismatch: the chunk says {crc:08x}, its bytes give {zlib.crc32(data):08x}")
         except Exception as exc:  # zstd, lz4 and struct raise their own types for garbled data
-            self._problem(f"{state.path}: corrupt chunk at byte {offset} skipped ({exc})")
+            # Named once the message indexes after it are read: they tell which topics are lost.
+            state.damaged = _DamagedChunk(state.chunks, offset, end, log_times, str(exc))
             return
         records = memoryview(data)
         pos = 0
@@ -291,6 +317,22 @@ class BagStream:
             return
         self.stats.chunks += 1
         yield from chunk_messages  # a chunk counts only once it parsed completely
+
+    def _count_lost(self, state: _FileState, body: bytes) -> None:
+        try:
+            channel_id, size = INDEX_HEAD.unpack_from(body, 0)
+        except struct.error:
+            return
+        state.damaged.lost[channel_id] = state.damaged.lost.get(channel_id, 0) + size // 16
+
+    def _report_damage(self, state: _FileState) -> None:
+        damaged, state.damaged = state.damaged, None
+        lost = ", ".join(f"{state.channels[c].topic if c in state.channels else f'channel {c}'} ({n})"
+                         for c, n in sorted(damaged.lost.items(), key=lambda item: str(state.channels.get(item[0]))))
+        first, last = (t / 1e9 for t in damaged.log_times)
+        self._problem(f"{state.path}: corrupt chunk {damaged.number} (bytes {damaged.start}-{damaged.end}, "
+                      f"receive times {first:.3f}-{last:.3f} s) skipped, never decoded ({damaged.why}); "
+                      f"lost messages: {lost or 'unknown (no message index after it)'}")
 
     def _record(self, state: _FileState, op: int, body: memoryview, topics) -> RawMessage | None:
         """Registers a schema or channel, or returns a message (None if filtered out)."""

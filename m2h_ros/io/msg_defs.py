@@ -1,4 +1,11 @@
-"""The m2h_msgs definitions, registered with rosbags so recorded runs decode without ROS installed."""
+"""The m2h_msgs definitions, registered with rosbags so recorded runs decode without ROS installed, and
+the released definitions of the standard types a bag carries whose packages the PyPI wheels lack.
+
+Those are pinned by their RIHS01 type hash (the hash the released Jazzy package's rosidl build gives; the
+test suite recomputes it from the released .msg text with rosidl's own generator): a bag written here is
+wire- and hash-compatible with the real package. They are registered with the bag writer only, never
+installed as a Python or ament package, so they cannot shadow the real one where ROS 2 has it.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +20,24 @@ from m2h_ros.errors import BagError
 from m2h_ros.paths import PACKAGE_DIR
 
 PACKAGE = "m2h_msgs"
+
+# foxglove_msgs/msg/RawAudio as released (foxglove_msgs 3.2.0 to 3.4.3 carry the same text), comments
+# left out (they do not enter the hash). Foxglove's Audio panel plays it.
+RAW_AUDIO = "foxglove_msgs/msg/RawAudio"
+RELEASED_DEFINITIONS = {
+    RAW_AUDIO: """builtin_interfaces/Time timestamp
+uint8[] data
+string format
+uint32 sample_rate
+uint32 number_of_channels
+""",
+}
+# tf2_msgs/msg/TFMessage comes with rosbags' Jazzy store; its hash is pinned all the same.
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+RELEASED_HASHES = {
+    TF_MESSAGE: "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+    RAW_AUDIO: "RIHS01_0b99ed3750364a2dcec27d8bf046f1b7c212ca9a5d26542819e08e83d62e3025",
+}
 
 
 def msg_dir() -> Path:
@@ -33,10 +58,16 @@ def msg_files() -> dict[str, Path]:
 
 @lru_cache(maxsize=1)
 def typestore() -> Typestore:
-    """A Jazzy typestore that also knows every m2h_msgs type."""
+    """A Jazzy typestore that also knows every m2h_msgs type and the released types above."""
     store = get_typestore(Stores.ROS2_JAZZY)
     types = {}
     for name, path in msg_files().items():
         types.update(get_types_from_msg(path.read_text(), name))
+    for name, text in RELEASED_DEFINITIONS.items():
+        types.update(get_types_from_msg(text, name))
     store.register(types)
+    for name, pinned in RELEASED_HASHES.items():
+        if store.hash_rihs01(name) != pinned:
+            raise BagError(f"{name}: this definition hashes to {store.hash_rihs01(name)}, the released "
+                           f"package's is {pinned}; bags would not match it")
     return store

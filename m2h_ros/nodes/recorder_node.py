@@ -18,6 +18,11 @@ from m2h_ros.ros.spin import run_node
 
 # Parameter traffic of every node is noise in a recording of the pipeline.
 IGNORED_TOPICS = frozenset({"/parameter_events"})
+# Log lines come seconds before the first data (nodes loading models, the graph matching): they are held
+# and written at the time of the first other message, each keeping its own stamp, so a bag's timeline
+# starts with the run. More than this many held lines are written as they come.
+LOG_TOPICS = frozenset({"/rosout"})
+HELD_LOG_LINES = 10_000
 
 
 class RecorderNode(Node):
@@ -28,6 +33,7 @@ class RecorderNode(Node):
         self.writer = BagWriter(Path(output), flush_period_s=self.config.flush_period_s)
         self.recorded: dict[str, str] = {}  # topic -> type name
         self.counts: dict[str, int] = {}
+        self.held: list[tuple[str, bytes]] | None = []  # log lines before the first data; None once written
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
         self.flusher = self.create_timer(self.config.flush_period_s, self.writer.flush)  # idle stretches too
         self.discover_topics()
@@ -67,10 +73,24 @@ class RecorderNode(Node):
             self.get_logger().info(f"recording {topic} [{types[0]}]")
 
     def write(self, topic: str, data: bytes) -> None:
+        if self.held is not None:
+            if topic in LOG_TOPICS and len(self.held) < HELD_LOG_LINES:
+                self.held.append((topic, data))
+                return
+            self.write_held()
         self.writer.write_raw(topic, self.recorded[topic], self.get_clock().now().nanoseconds, data)
         self.counts[topic] += 1
 
+    def write_held(self) -> None:
+        held, self.held = self.held, None
+        now = self.get_clock().now().nanoseconds
+        for topic, data in held:
+            self.writer.write_raw(topic, self.recorded[topic], now, data)
+            self.counts[topic] += 1
+
     def destroy_node(self) -> None:
+        if self.held:  # a run that never got going: its log lines are all it has
+            self.write_held()
         self.writer.close()
         total = sum(self.counts.values())
         # The context may already be shut down (Ctrl-C): log without the node's rosout publisher.

@@ -2,6 +2,7 @@
 `mcap-ros2-support`, as Foxglove's tools use) decodes them message for message."""
 
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -59,6 +60,42 @@ def test_metadata_follows_rosbag2_jazzy(run_bag):
     (latched,) = entries["/" + topics.EPISODE]["topic_metadata"]["offered_qos_profiles"]
     assert latched["durability"] == "transient_local" and latched["reliability"] == "reliable"
     assert sum(e["message_count"] for e in entries.values()) == info["message_count"]
+    assert info["ros_distro"] == (os.environ.get("ROS_DISTRO") or "jazzy")
+
+
+# What rosbag2_storage_mcap (jazzy) puts in a channel's metadata for one reliable, transient-local
+# publisher: yaml-cpp's dump of the QoS list (block style, no final newline), then the type hash.
+ROSBAG2_QOS_TEXT = """- history: keep_last
+  depth: 1
+  reliability: reliable
+  durability: transient_local
+  deadline:
+    sec: 0
+    nsec: 0
+  lifespan:
+    sec: 0
+    nsec: 0
+  liveliness: automatic
+  liveliness_lease_duration:
+    sec: 0
+    nsec: 0
+  avoid_ros_namespace_conventions: false"""
+
+
+def test_channels_carry_rosbag2_jazzy_metadata(run_bag):
+    store = typestore()
+    with next(run_bag.glob("*.mcap")).open("rb") as stream:
+        reader = make_reader(stream)
+        channels = {c.topic: c for c in reader.get_summary().channels.values()}
+        schemas = reader.get_summary().schemas
+        (record,) = [m for m in reader.iter_metadata() if m.name == "rosbag2"]
+    for topic, channel in channels.items():
+        assert list(channel.metadata) == ["offered_qos_profiles", "topic_type_hash"], topic
+        assert channel.metadata["topic_type_hash"] == store.hash_rihs01(schemas[channel.schema_id].name)
+    assert channels["/" + topics.EPISODE].metadata["offered_qos_profiles"] == ROSBAG2_QOS_TEXT
+    assert channels["/" + topics.AUDIO].metadata["offered_qos_profiles"] == "[]"  # no publisher's QoS known
+    listed = yaml.safe_load(record.metadata["serialized_metadata"])
+    assert listed == yaml.safe_load((run_bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
 
 
 def test_independent_reader_decodes_every_message(run_bag):

@@ -9,8 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap.stream_reader import CRCValidationError
 from rosbag2_style import rewrite_as_rosbag2
 
+from m2h_ros import topics
 from m2h_ros.core.results import METRICS
 from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
@@ -201,10 +204,53 @@ def test_corrupt_zstd_chunk_is_skipped_and_later_episodes_scored(near_bag, tmp_p
     mcap.write_bytes(bytes(data))
     replay = replay_bag(other)
     text = "\n".join(map(str, replay.problems))
-    assert "corrupt chunk at byte" in text
+    assert "corrupt chunk" in text and "skipped, never decoded" in text
     scored = {r.episode_id for r in replay.results}
     assert live[0].episode_id in scored and live[2].episode_id in scored and live[1].episode_id not in scored
     same_results(replay.results, [live[0], live[2]])
+
+
+def test_flipped_payload_bytes_are_named_skipped_and_never_scored(tmp_path):
+    bag = tmp_path / "bag"
+    with BagWriter(bag, flush_period_s=1e-6) as writer:  # a chunk per message
+        live = write_synthetic_run(bag, NEAR, writer=writer)
+    mcap_file = next(bag.glob("*.mcap"))
+    data = bytearray(mcap_file.read_bytes())
+    with mcap_file.open("rb") as stream:
+        channels = make_reader(stream).get_summary().channels
+    refined = next(c.id for c in channels.values() if c.topic == "/" + topics.REFINED)
+    # The chunk with the second episode's first refined estimate (two messages), flipped mid-payload.
+    number, offset = [(k + 1, o) for k, o in enumerate(chunk_offsets(data)) if refined in chunk_channels(data, o)][5]
+    end = offset + 9 + int.from_bytes(data[offset + 1:offset + 9], "little")
+    middle = (offset + end) // 2
+    damaged = bytes(data[:middle]) + bytes(b ^ 0xFF for b in data[middle:middle + 8]) + bytes(data[middle + 8:])
+    mcap_file.write_bytes(damaged)
+
+    stream = BagStream(bag)
+    list(stream.messages())
+    problem, count = map(str, stream.problems)
+    assert "read 151 of the 153 messages" in count
+    assert f"corrupt chunk {number} (bytes {offset}-{end}" in problem and "CRC-32 mismatch" in problem
+    assert f"/{topics.REFINED} (1)" in problem.split("lost messages: ")[1]
+    with mcap_file.open("rb") as stream, pytest.raises(CRCValidationError):  # the independent reader agrees
+        for _ in make_reader(stream, validate_crcs=True).iter_messages():
+            pass
+    replay = replay_bag(bag)
+    same_results(replay.results, [live[0], live[2]])  # the damaged episode is not scored, the others are
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out"), "--no-plots"]) == 3
+
+
+def chunk_channels(data: bytes, offset: int) -> set[int]:
+    """Channels of the messages in an uncompressed chunk."""
+    pos = offset + 9 + 28
+    pos += 4 + int.from_bytes(data[pos:pos + 4], "little")  # compression string
+    end = pos + 8 + int.from_bytes(data[pos:pos + 8], "little")
+    pos, channels = pos + 8, set()
+    while pos < end:
+        if data[pos] == 0x05:
+            channels.add(int.from_bytes(data[pos + 9:pos + 11], "little"))
+        pos += 9 + int.from_bytes(data[pos + 1:pos + 9], "little")
+    return channels
 
 
 def test_foreign_definition_is_named_and_not_decoded(near_bag, tmp_path):
