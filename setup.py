@@ -9,7 +9,7 @@ NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "rec
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version="1.0.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
     package_data={PACKAGE: ["models/default/*.pt", "models/default/*.json", "core/sounds/library_index.json"]},
     data_files=[

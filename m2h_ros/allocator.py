@@ -5,7 +5,7 @@ glibc serves a block above its mmap threshold (adapting up to 32 MiB) with a fre
 it to the kernel on ``free``; the next allocation of that size then faults in and zero-fills every
 page again. A PPO update allocates and frees tensors of 5-42 MB many times (320-sample activations,
 their gradients, the stacked rollout): without this, a benchmark run spent ~35% more page faults and
-~0.4 ms of system time per env step on it (docs/policies.md, Speed). Raising the mmap and trim
+~0.4 ms of system time per env step on it (docs/design/policies.md, Speed). Raising the mmap and trim
 thresholds keeps those blocks in the heap for the next update; the peak resident size stays the same.
 The pipeline's messages are 64-200 KiB, just above the initial 128 KiB threshold: a node receiving a
 188 KiB message spends ~40% less CPU on it with this (``scripts/bench/ros_messages.py``).

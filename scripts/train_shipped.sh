@@ -2,7 +2,7 @@
 # A shipped policy, or the shipped separator's f^R, in one command, fixed seeds, THREADS torch threads
 # (default 2: both cores of the 2-core machines it is sized for; the thread count is part of what makes
 # the weights reproducible on one machine kind, other CPUs round differently and drift); a run or stage
-# that stopped resumes where it stopped, a finished one is not trained again. docs/policies.md has what each learned and how long it took.
+# that stopped resumes where it stopped, a finished one is not trained again. docs/design/policies.md has what each learned and how long it took.
 #
 #   quality:    pi^Q ("The shipped pi^Q"): two stages of PPO on near-target episodes, 32 slots x 20 steps,
 #               f^R frozen, the SI-SDR-improvement reward without the final-step term, Adam 3e-4, the
@@ -62,7 +62,7 @@ case "$KIND" in
     echo "[train_shipped] the separator with f^R trained beside pi^Q: $OUT/separator.pt" ;;
   navigation)
     # Stage 1 from pi^Q (it learned to hear and approach near targets: pi^N learns faster from it than from the
-    # approach policy or random weights, docs/policies.md), then each stage from the one before, other episodes.
+    # approach policy or random weights, docs/design/policies.md), then each stage from the one before, other episodes.
     init=m2h_ros/models/default/policy_quality.pt
     for stage in 1 2 3 4 5; do
         python scripts/train_policy.py "$recipe" --threads "$THREADS" --scene-split train48 --entropy-coef 0.01 \

@@ -9,7 +9,7 @@ ends a far-target episode (the AV-Navigator task), so a controller that wants to
 far-target turns left and right in place instead (:func:`hold_in_place`).
 
 All of them see only :class:`~m2h_ros.agents.base.ControllerObservation`: odometry, audio, separator
-outputs. The start pose is the pose of an episode's step-0 observation. docs/baselines.md has the
+outputs. The start pose is the pose of an episode's step-0 observation. docs/design/baselines.md has the
 choices made and the measurements behind them.
 """
 

@@ -16,7 +16,7 @@ the room from depth, plan a path there, and stop when the Stop predictor hears t
   until the robot faces it, then MoveForward.
 * **Stop**: when the Stop predictor's probability has exceeded ``stop_threshold`` on
   ``stop_patience`` consecutive steps (one step alone fires too often away from the target: 1-6%
-  of the validation split's observations, docs/baselines.md). Near-target episodes (where Stop is
+  of the validation split's observations, docs/design/baselines.md). Near-target episodes (where Stop is
   a no-op) never stop on purpose; the planner simply keeps going.
 
 It reads the mixture, the odometry and the depth image, never the separator's outputs.

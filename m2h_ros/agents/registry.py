@@ -45,12 +45,12 @@ class Variant:
 # Plain "move2hear" walks far-target with pi^N + Stop, whose Stop ends the episode, to step 100 (T^N chosen on
 # validation, session 27). "move2hear:approach" is the composite as the original trains it (an approach policy
 # without Stop, pi^Q from T^N = 80: the default until session 26); "move2hear:stop" pi^N + Stop until T^N = 80,
-# then pi^Q; "move2hear:handover" pi^N + Stop whose Stop is the switch to pi^Q (docs/policies.md).
+# then pi^Q; "move2hear:handover" pi^N + Stop whose Stop is the switch to pi^Q (docs/design/policies.md).
 APPROACH = ":approach"
 NAVIGATION_STOP = ":stop"
 HAND_OVER = ":handover"
 # "move2hear_navigation:confirm": pi^N + Stop whose Stop needs the supervised Stop predictor's agreement
-# (Gan et al.'s sound locator, p >= 0.5; chosen on the validation split, docs/policies.md).
+# (Gan et al.'s sound locator, p >= 0.5; chosen on the validation split, docs/design/policies.md).
 CONFIRM_STOP = ":confirm"
 LEARNED_VARIANTS = {
     "move2hear" + APPROACH: Variant("move2hear", {"navigation_stop": "masked"},

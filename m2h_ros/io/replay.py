@@ -260,7 +260,7 @@ class _Replayer:
         if c.steps and _only_stft_distance_differs(c):
             self.notes.append("every live STFT distance differs while every SI-SDR agrees: the bag was most likely "
                               "recorded before the STFT distance became the original code's (session 11; it was a "
-                              "Frobenius norm, docs/separator.md)")
+                              "Frobenius norm, docs/design/separator.md)")
         return BagReplay(self.bag, self.results, c, self.problems, self.notes, self.stream.stats,
                          self.steps_scored)
 

@@ -45,7 +45,7 @@ DEFAULT_SEPARATOR_CHECKPOINT = PACKAGE_DIR / "models" / "default" / "separator_c
 # The entry points that write them (named in error messages).
 PRETRAINED_SEPARATOR_BUILD_COMMAND = "python -m m2h_ros.training.pretrain_separator"
 DEFAULT_SEPARATOR_BUILD_COMMAND = (f"{PRETRAINED_SEPARATOR_BUILD_COMMAND}, then scripts/train_shipped.sh refiner "
-                                   "(f^R trained beside pi^Q; docs/policies.md)")
+                                   "(f^R trained beside pi^Q; docs/design/policies.md)")
 
 _PLAIN_TYPES = (str, int, float, bool, type(None))
 

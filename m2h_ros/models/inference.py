@@ -10,7 +10,7 @@ Why: at batch 1 a step is bound by per-call overhead, not arithmetic. A plain ``
 reorders the weight into oneDNN's blocked layout on *every* call; for the paper preset's 512-channel
 bottleneck that is a 16 MB copy per layer and call, which costs far more than the convolution itself,
 and for the compact preset each call pays tens of microseconds for it. Prepacking removes that.
-``scripts/bench/separator.py`` measures the difference; docs/separator.md has the table.
+``scripts/bench/separator.py`` measures the difference; docs/design/separator.md has the table.
 
 The copy is for inference only: it has no BatchNorm left to train, its parameters do not require
 gradients, and it must not be saved as a checkpoint (save the original). Its outputs equal the

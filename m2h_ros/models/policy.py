@@ -271,7 +271,7 @@ class ConvEncoder(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         # channels_last sends the convolutions to oneDNN's direct kernels: the k8 s4 first layer over
-        # 32 audio channels runs ~2.5x faster forward and backward than in NCHW on CPU (docs/policies.md,
+        # 32 audio channels runs ~2.5x faster forward and backward than in NCHW on CPU (docs/design/policies.md,
         # Speed); the weights keep their layout, so checkpoints are unaffected. No copy if x already is.
         return self.cnn(x.contiguous(memory_format=torch.channels_last))
 

@@ -94,7 +94,7 @@ class SeparatorRunner:
             OrderedDict() for _ in range(n_slots)]
         self.cache_hits = self.cache_misses = 0
         # BatchNorm folded, oneDNN weights prepacked: the trained model's numbers (to float tolerance),
-        # several times faster per step (docs/separator.md, Inference speed)
+        # several times faster per step (docs/design/separator.md, Inference speed)
         self.separator = fuse_for_inference(loaded.separator)
         self.device = next(self.separator.parameters()).device
         self.memory: torch.Tensor | None = None

@@ -8,7 +8,7 @@ was fastest at batch 1, 2 and 4 in every sweep and at batch 8 in two of three; t
 batch 16 in two of three; at batch 32 one thread won all three (under that load the second core is
 rarely free). Above the threshold this uses every core the process may run on, as torch would by
 default; on an idle machine or one with more cores that is the likely winner, but it is not
-measured here (docs/separator.md, Inference speed).
+measured here (docs/design/separator.md, Inference speed).
 
 Usage (``torch.set_num_threads`` is process-wide, so set it once per run, not per step)::
 

@@ -1,6 +1,6 @@
 """The target-location auxiliary task (``PPOConfig.location_coef``): the GRU learns where the target is.
 
-Kickstarting from the approach teacher did not take for pi^Q (docs/policies.md): one step's binaural
+Kickstarting from the approach teacher did not take for pi^Q (docs/design/policies.md): one step's binaural
 cue says little about which way the target lies, and PPO's sparse return does not teach the policy to
 gather that over steps and turns. An auxiliary loss does it directly (as in UNREAL, Jaderberg et al.
 2017, and the depth / localisation heads of navigation agents): a linear head on the GRU's output

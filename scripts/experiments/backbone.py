@@ -7,7 +7,7 @@
 
 Three separators, each a condition: the shipped compact U-Net (``m2h_ros/models/default``), a compact
 U-Net trained with the experiment's smaller budget, and the MMDenseNet-style separator trained with
-the same budget, seed and data stream (``docs/separator_training.md``; the commands that
+the same budget, seed and data stream (``docs/design/separator_training.md``; the commands that
 train them: docs/results/experiments/backbone/README.md). Each controller plays the first ``--count`` near-target test episodes of each
 sound split with each separator: Stand In-Place (no motion), DoA (the best training-free mover)
 and the shipped pi^Q (trained on the shipped separator's outputs). The report adds every controller's

@@ -5,7 +5,7 @@
         [--sound-split heard,unheard] [--count 100] [--chunk 50] [--workers 2] [--address ADDR]
         [--seed 0] [--out docs/results/reward]
 
-Train the runs first, one per reward, with the same seed and budget (docs/experiments.md):
+Train the runs first, one per reward, with the same seed and budget (docs/design/experiments.md):
 
     python scripts/train_policy.py --kind quality --frozen-refiner --updates 250 --episodes 10000 --seed 0 \\
         --threads 1 --quality-reward si_sdr --out runs/reward/si_sdr

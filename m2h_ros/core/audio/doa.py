@@ -11,7 +11,7 @@
 
 Neither tells front from back (azimuths a and 180 deg - a look alike). In this simulator's rooms the
 ILD is the reliable cue: ``scripts/bench/doa_cues.py`` measures both against the true bearing (the
-early reflections outweigh the direct sound, which the ITD needs; see docs/baselines.md).
+early reflections outweigh the direct sound, which the ITD needs; see docs/design/baselines.md).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Built once from real material (``scripts/build_sound_library.py``) into
 ``data_dir()/sounds/v<LIBRARY_VERSION>/<config fingerprint>/`` as ``heard.npy``, ``unheard.npy``
 (float32, rows grouped by class) and ``manifest.json`` (config, and per clip: class, category,
 source package and file, offset, licence, gains). ``SoundLibrary.from_folders`` builds the same
-object in memory from a user's own folder tree. See docs/sound_library.md.
+object in memory from a user's own folder tree. See docs/design/sound_library.md.
 """
 
 from __future__ import annotations

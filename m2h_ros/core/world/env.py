@@ -121,7 +121,7 @@ class _PoseCache:
 
     One array per render made each episode's renders fresh heap memory, which glibc hands back to
     the system when a reset frees them all at once; the next episode then paid ~160 page faults
-    per render (docs/simulator.md; ``allocator.keep_freed_blocks`` keeps such memory too).
+    per render (docs/design/simulator.md; ``allocator.keep_freed_blocks`` keeps such memory too).
     """
 
     def __init__(self, capacity: int, n_samples: int, spectrogram_shape: tuple[int, int], *,
@@ -191,7 +191,7 @@ class BatchEnv:
     whose RIRs were transformed before (by any slot, in any episode) skips their FFTs
     (``RirSpectra``; 192 KiB an entry for 0.5 s RIRs). It pays where poses recur across episodes
     (many clips at few poses); random-action episodes over the test scenes hit it only ~15% of the
-    time at 256 MiB, where its memory traffic costs more than it saves (docs/simulator.md).
+    time at 256 MiB, where its memory traffic costs more than it saves (docs/design/simulator.md).
     ``stored_rir_spectra`` (default False) instead reads every RIR spectrum from files stored next
     to the RIR bank (``StoredRirSpectra``: ~1 GiB of disk and page cache per 32-node scene, computed
     once): a fresh render skips the RIR gather and its FFT, ~25% of an env step's CPU.

@@ -117,7 +117,7 @@ class StoredRirSpectra:
     (the RIR bank itself is 175 MiB). Each file is computed from the bank on first use (or all at
     once with ``build()``), written atomically. The values are those ``RirSpectra`` computes (each
     row's rfft does not depend on the batch it is in), so using them changes no number; a fresh
-    render then skips the RIR gather and its FFT (docs/simulator.md). The page cache holds the
+    render then skips the RIR gather and its FFT (docs/design/simulator.md). The page cache holds the
     files once for every process reading them.
     """
 

@@ -1,0 +1,40 @@
+"""The documentation site builds with Sphinx, warnings as errors: a broken link between pages, a
+missing anchor, a repository path that does not exist, or a page outside the navigation fails it."""
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from m2h_ros import node_configs
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def build(out: Path, source: Path = ROOT / "docs") -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html",
+                           "-d", str(out / "doctrees"), str(source), str(out / "html")],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("docs")
+    result = build(out)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return out / "html"
+
+
+def test_the_docs_site_builds_without_warnings(site):
+    assert (site / "index.html").is_file() and (site / "reference" / "nodes.html").is_file()
+
+
+def test_the_node_reference_is_generated_from_the_config_dataclasses(site):
+    page = (site / "reference" / "nodes.html").read_text()
+    for cls in (node_configs.SimConfig, node_configs.SeparatorNodeConfig, node_configs.ControllerConfig,
+                node_configs.EvaluatorConfig, node_configs.RecorderConfig):
+        for field in dataclasses.fields(cls):
+            assert f"<code class=\"docutils literal notranslate\"><span class=\"pre\">{field.name}</span></code>" \
+                in page, f"{cls.__name__}.{field.name} missing from the node reference"
