@@ -26,6 +26,11 @@ class CacheError(M2HError):
     """A cached artefact (RIR bank, sound library, episode file) is missing, stale or corrupt."""
 
 
+class HeadError(M2HError, ValueError):
+    """A head (SOFA HRIR file) is unusable: unreadable, no impulse responses, not two receivers,
+    non-finite or all-zero responses, bad source positions, or a sample rate below the simulation's."""
+
+
 class CheckpointError(M2HError):
     """A checkpoint is missing, corrupt, or does not match the model or settings asked for."""
 

@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES
 from m2h_ros.config import DEVICES, Config, setting
+from m2h_ros.core.world.hrtf import parse_head
 from m2h_ros.errors import ConfigError
 
 TASKS = ("near_target", "far_target")
@@ -49,11 +50,14 @@ class SimConfig(Config):
                                          "original; small scenes need about 3)", min=0.0, max=100.0)
     acoustics: str = setting("default", "acoustics preset; fast = short RIRs without a late tail, "
                              "for tests and quick looks only", choices=("default", "fast"))
+    head: str = setting("kemar", "the head the ears are simulated with: kemar, sofa:PATH (a SOFA HRIR "
+                        "file with two receivers) or free_field:SPACING_M (two microphones, no head)")
     camera: bool = setting(True, "render and publish RGB-D images")
     camera_size: int = setting(128, "width and height of the RGB and depth images", min=16, max=1024)
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        parse_head(self.head)
         unknown = sorted(set(self.expect_nodes) - set(PIPELINE_NODES))
         if unknown:
             raise ConfigError(f"SimConfig.expect_nodes = {list(self.expect_nodes)}: unknown node(s) "

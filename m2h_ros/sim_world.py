@@ -4,6 +4,7 @@ before any node starts) and the tests all derive the same episodes from the same
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from m2h_ros.core.sounds import partial
@@ -77,4 +78,4 @@ def sim_episodes(config: SimConfig, library: SoundLibrary) -> list[Episode]:
 def env_config(config: SimConfig) -> EnvConfig:
     return EnvConfig(mic_noise=config.mic_noise, camera=config.camera,
                      camera_config=CameraConfig(width=config.camera_size, height=config.camera_size),
-                     acoustics=ACOUSTICS_PRESETS[config.acoustics])
+                     acoustics=dataclasses.replace(ACOUSTICS_PRESETS[config.acoustics], head=config.head))

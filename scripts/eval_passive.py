@@ -2,6 +2,7 @@
 """Passive separation on the held-out test episodes: floor (mixture), separator and ideal-mask oracle.
 
     python scripts/eval_passive.py [--checkpoint m2h_ros/models/default/separator_compact.pt] [--count 500]
+                                   [--head kemar | sofa:PATH | free_field:SPACING_M]
 
 Stand In-Place at step 0 of near-target test episodes (heard and unheard sounds; the first --count
 episodes of the standard 1000-episode files), f^B + f^M + f^R with fresh memory; definitions in
@@ -21,6 +22,9 @@ from pathlib import Path
 from m2h_ros.core.audio.scoring import DEPLOYABLE_REFERENCE
 from m2h_ros.core.results import METRIC_LABELS, METRICS
 from m2h_ros.core.sounds.library import SoundLibrary
+from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.env import EnvConfig
+from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
 from m2h_ros.errors import reports_errors
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
@@ -54,20 +58,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default: next to the checkpoint)")
+    parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
     args = parser.parse_args(argv)
+    env_config = EnvConfig(camera=False, acoustics=AcousticsConfig(head=args.head))
     loaded = load_separator(args.checkpoint)
     library = SoundLibrary.load()
     results, started = {}, time.perf_counter()
     for split in args.sound_split or SOUND_SPLITS:
         episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
-        summary = summarize(evaluate_passive(loaded, episodes[: args.count], library))
+        summary = summarize(evaluate_passive(loaded, episodes[: args.count], library, env_config=env_config))
         results[split] = {"summary": summary, "gap_closed": {e: {m: gap_closed(summary, m, e) for m in METRICS}
                                                               for e in GAP_ESTIMATES}}
     print(format_table(results))
     out = args.out or args.checkpoint.with_name(f"{args.checkpoint.stem}_passive.json")
     given = sys.argv[1:] if argv is None else argv
     document = {"command": shlex.join(["scripts/eval_passive.py", *given]),
-                "checkpoint": repo_relative(args.checkpoint), "task": args.task, "scene_split": "test", "step": 0,
+                "checkpoint": repo_relative(args.checkpoint), "head": args.head,
+                "acoustics": env_config.acoustics.digest(), "task": args.task, "scene_split": "test", "step": 0,
                 "count_per_split": args.count, "wall_seconds": round(time.perf_counter() - started, 1),
                 "estimates": {"mixture": "|STFT| of the ear-mean mixture (do nothing)",
                               "separator": "f^B -> f^M -> f^R, fresh memory (estimate of the dry target)",

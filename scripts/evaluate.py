@@ -37,6 +37,8 @@ from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differen
                                   summarize, write_results)
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world import acoustics  # noqa: E402
+from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
+from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.core.world.scene import SCENE_SPLITS  # noqa: E402
@@ -73,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--slots", type=int, default=16, help="episodes played at once")
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
     parser.add_argument("--mic-noise", type=float, default=0.0, help="microphone noise std / mixture RMS")
+    parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="separator")
     parser.add_argument("--policy-checkpoint", default="",
                         help="policy file (a directory for move2hear) for the learned controllers; "
@@ -147,13 +150,13 @@ def main(argv: list[str] | None = None) -> int:
     episodes = [e for split in splits for e in select_episodes(args.task, split, first=args.first, count=args.count,
                                                                  library=library, scene_split=args.scene_split)]
     env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
-                           mic_noise=args.mic_noise)
+                           mic_noise=args.mic_noise, acoustics=AcousticsConfig(head=args.head))
     results, model_files = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
     meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
             "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",
             "task": args.task, "scene_split": args.scene_split,
             "sound_splits": splits, "first": args.first, "count_per_split": args.count,
-            "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
+            "head": args.head, "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
             "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
             "load_average": load_averages()}
     reference = args.reference if args.reference in controllers else None

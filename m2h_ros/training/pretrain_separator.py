@@ -2,6 +2,9 @@
 
     python -m m2h_ros.training.pretrain_separator [--preset compact] [--backbone unet] [--seed 0] [--out PATH]
 
+For a robot's own head: ``--head sofa:PATH`` (or ``free_field:SPACING_M``) renders every stream through
+that head, and ``--init-from`` a checkpoint fine-tunes it (docs/how-to/robot-head.md).
+
 Data (``separator_data``): every batch is a fresh draw (episode, walk, clips, gains, noise) from the
 training scenes with heard sounds, rendered by DataLoader worker processes while the main process
 trains; validation is a fixed set drawn once from the val scenes with unheard sounds, unaugmented.
@@ -59,6 +62,9 @@ from torch.utils.data import DataLoader  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
+from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
+from m2h_ros.core.world.env import EnvConfig  # noqa: E402
+from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import CheckpointError, ConfigError, reports_errors  # noqa: E402
 from m2h_ros.models.device import DEVICES, check_device, resolve_device
@@ -494,6 +500,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--speed-min", type=float, default=1.0,
                         help="slow-down augmentation: each training sequence played at a speed uniform in "
                              "[SPEED_MIN, 1] (lower pitch, longer room; default 1: none)")
+    parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
     parser.add_argument("--init-from", type=Path, default=None,
                         help="start stage 1 from this separator checkpoint's weights (fine-tuning)")
     parser.add_argument("--final-lr", type=float, default=None,
@@ -509,18 +516,20 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> PretrainConfig:
     """The run :func:`main` makes of ``build_parser()``'s arguments."""
     model = dataclasses.replace(SeparatorConfig.preset(args.preset), backbone=args.backbone)
+    env = EnvConfig(camera=False, acoustics=AcousticsConfig(head=args.head))  # every stream hears the head
     return PretrainConfig(model=model, seed=args.seed, epochs=args.epochs,
                       batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
                       refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,
                       workers=args.workers, device=args.device, final_lr=args.final_lr,
                       init_from=repo_relative(args.init_from) if args.init_from else "",
-                      train_data=StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
-                                                       source_nodes=args.source_nodes, eq_db=args.eq_db,
-                                                       speed_min=args.speed_min),
+                      train_data=dataclasses.replace(
+                          StreamConfig.training(seed=args.data_seed, scenes=args.train_scenes,
+                                                source_nodes=args.source_nodes, eq_db=args.eq_db,
+                                                speed_min=args.speed_min), env=env),
                       refiner_data=dataclasses.replace(_stage2_stream(), seed=args.data_seed, eq_db=args.eq_db,
-                                                       speed_min=args.speed_min,
+                                                       speed_min=args.speed_min, env=env,
                                                        scenes=args.train_scenes, source_nodes=args.source_nodes),
-                      val_data=StreamConfig.validation(source_nodes=args.source_nodes))
+                      val_data=dataclasses.replace(StreamConfig.validation(source_nodes=args.source_nodes), env=env))
 
 
 @reports_errors("train_separator")

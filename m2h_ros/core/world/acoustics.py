@@ -1,4 +1,5 @@
-"""Binaural room impulse responses of a scene: image sources + ray-traced tail + measured KEMAR HRTF.
+"""Binaural room impulse responses of a scene: image sources + ray-traced tail + a head's HRTF (measured
+KEMAR by default; any SOFA head or a free-field microphone pair: ``AcousticsConfig.head``, ``hrtf.load_head``).
 
 Method (per source node, all receiver nodes at once):
 
@@ -25,7 +26,8 @@ Method (per source node, all receiver nodes at once):
   share of every reflection goes diffuse, which makes the decay follow Eyring instead of lingering
   in grazing specular orbits between parallel walls) gives per-band
   energy histograms per receiver; they shape two noise sequences per receiver, mixed per band to
-  the diffuse-field interaural coherence sin(kd)/(kd) of a head of width ``head_width``.
+  the diffuse-field interaural coherence sin(kd)/(kd) of ears d apart (the head's ear spacing where it
+  defines one, else ``head_width``).
 
 Amplitude convention: the direct path at distance d has amplitude 1/d (times the HRIR, normalised
 to unit diffuse-field energy per ear); the ray tracer's histograms use the same energy scale
@@ -46,7 +48,7 @@ from pyroomacoustics.doa import fibonacci_spherical_sampling
 from scipy import fft as sfft
 from scipy.signal import butter, sosfiltfilt
 
-from m2h_ros.core.world.hrtf import Hrtf, load_kemar
+from m2h_ros.core.world.hrtf import KEMAR, Hrtf, head_identity, load_head, parse_head
 from m2h_ros.core.world.scene import FURNISHINGS
 from m2h_ros.errors import ConfigError
 
@@ -77,11 +79,13 @@ class AcousticsConfig:
     wall_transmission_db: float = 40.0  # dB lost per wall crossed by a blocked direct path
     air_absorption: bool = True
     head_height: float = 1.5  # m: ears and sources
-    head_width: float = 0.18  # m: sets the interaural coherence of the diffuse tail
+    head_width: float = 0.18  # m: the diffuse tail's interaural coherence, for heads without an ear spacing
     min_distance: float = 0.5  # m: closer sources are treated as at this distance
     speed_of_sound: float = 343.0  # m/s
     storage_dtype: str = "float32"  # float16 halves the disk size, but casting triples gather time
     seed: int = 0  # noise of the late tail
+    # kemar | sofa:PATH | free_field:SPACING_M (hrtf.load_head); a SOFA head is keyed by its content
+    head: str = KEMAR
 
     def __post_init__(self) -> None:
         positive = (
@@ -116,6 +120,7 @@ class AcousticsConfig:
             )
         if not isinstance(self.tail, bool) or not isinstance(self.air_absorption, bool):
             raise ConfigError("AcousticsConfig.tail and .air_absorption must be booleans")
+        parse_head(self.head)
 
     @property
     def n_taps(self) -> int:
@@ -131,10 +136,14 @@ class AcousticsConfig:
         return N_HEADINGS * 2 * self.n_early + 2 * self.n_taps
 
     def digest(self) -> str:
-        """Short hash of everything that changes results: settings, code version, libraries."""
+        """Short hash of everything that changes results: settings, code version, libraries, the head
+        (KEMAR's banks keep the digest they had before other heads existed)."""
+        config = asdict(self)
+        identity = head_identity(config.pop("head"))
+        hrtf = "MIT_KEMAR_normal_pinna" if identity is None else identity
         payload = json.dumps(
-            {"config": asdict(self), "version": VERSION, "pyroomacoustics": pra.__version__,
-             "hrtf": "MIT_KEMAR_normal_pinna, diffuse-field equalised"},
+            {"config": config, "version": VERSION, "pyroomacoustics": pra.__version__,
+             "hrtf": f"{hrtf}, diffuse-field equalised"},
             sort_keys=True,
         )
         return hashlib.sha256(payload.encode()).hexdigest()[:16]
@@ -330,7 +339,7 @@ def _early_part(vectors: np.ndarray, gains: np.ndarray, hrtf: Hrtf, hrtf_spectra
 
 
 def _late_part(histograms: np.ndarray, direct_delay: np.ndarray, weights: np.ndarray,
-               rng: np.random.Generator, config: AcousticsConfig) -> np.ndarray:
+               rng: np.random.Generator, config: AcousticsConfig, *, ear_spacing: float) -> np.ndarray:
     """(R, 2, T) binaural diffuse tails from (R, B, bins) energy histograms, silent before each
     receiver's ``direct_delay`` (samples): nothing arrives before the direct sound."""
     n_rec, n_taps = histograms.shape[0], config.n_taps
@@ -338,7 +347,7 @@ def _late_part(histograms: np.ndarray, direct_delay: np.ndarray, weights: np.nda
     # White noise of unit variance split into bands: each band keeps its share of the spectrum,
     # as in pyroomacoustics (every band's histogram holds the energy of a full-band ray).
     band_noise = sfft.irfft(spectra[:, :, None, :] * np.sqrt(weights), n_taps, axis=-1)  # (R, 2, B, T)
-    coherence = np.sinc(2 * BAND_CENTRES * config.head_width / config.speed_of_sound)
+    coherence = np.sinc(2 * BAND_CENTRES * ear_spacing / config.speed_of_sound)
     same, diff = np.sqrt((1 + coherence) / 2), np.sqrt(np.maximum(1 - coherence, 0) / 2)
     left = same[:, None] * band_noise[:, 0] + diff[:, None] * band_noise[:, 1]
     right = same[:, None] * band_noise[:, 0] - diff[:, None] * band_noise[:, 1]
@@ -364,7 +373,7 @@ def receiver_positions(scene: Any, config: AcousticsConfig) -> np.ndarray:
 def simulate_source(scene: Any, source_node: int, config: AcousticsConfig, *,
                     surfaces: list | None = None) -> np.ndarray:
     """(N, row_length) rows of the bank for one source node: early (4,2,E) then late (2,T) per receiver."""
-    hrtf = load_kemar(config.sample_rate)
+    hrtf = load_head(config.head, config.sample_rate)
     points = receiver_positions(scene, config)
     if not 0 <= source_node < len(points):
         raise ConfigError(f"source node {source_node} is not a node of scene {scene.scene_id}")
@@ -417,7 +426,8 @@ def simulate_source(scene: Any, source_node: int, config: AcousticsConfig, *,
             histograms[r, :, : hist.shape[1]] = hist
         rng = np.random.default_rng([config.seed, int(source_node)])
         direct_delay = np.linalg.norm(points - source, axis=1) / config.speed_of_sound * config.sample_rate
-        late = _late_part(histograms, direct_delay, _band_weights(config.n_taps, config.sample_rate), rng, config)
+        late = _late_part(histograms, direct_delay, _band_weights(config.n_taps, config.sample_rate), rng, config,
+                          ear_spacing=hrtf.ear_spacing or config.head_width)
         rows[:, N_HEADINGS * 2 * n_early:] = late.reshape(len(points), -1)
     return rows.astype(config.storage_dtype)
 
