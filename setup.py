@@ -5,7 +5,7 @@ from glob import glob
 from setuptools import find_packages, setup
 
 PACKAGE = "m2h_ros"
-NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node")
+NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node")
 
 setup(
     name=PACKAGE,

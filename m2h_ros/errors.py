@@ -47,6 +47,10 @@ class PipelineError(M2HError):
     """The node graph broke its step contract: a node stopped answering, or sent unusable data."""
 
 
+class LiveViewError(M2HError):
+    """The live view cannot serve: its address is unusable or its port is taken."""
+
+
 def reports_errors(prog: str) -> Callable[[Callable[P, int | None]], Callable[P, int]]:
     """Decorates a command's ``main``: an M2HError ends it as argparse ends a bad option, with one line
     ``PROG: error: MESSAGE`` on stderr and exit code 2, not a traceback (the error names the problem;

@@ -99,3 +99,16 @@ class RecorderConfig(Config):
                                         max=60.0)
     flush_period_s: float = setting(0.25, "the open MCAP chunk is written to disk at least this often, "
                                     "so a killed recorder loses at most about this much", min=0.01, max=60.0)
+
+
+@dataclass(frozen=True)
+class LiveViewConfig(Config):
+    host: str = setting("127.0.0.1", "address the Foxglove WebSocket server binds to; 127.0.0.1: this "
+                        "machine only (0.0.0.0 serves every network the machine is on, unauthenticated)")
+    port: int = setting(8765, "TCP port of the server (8765 is Foxglove's default); 0: any free port",
+                        min=0, max=65535)
+    topics: tuple[str, ...] = setting((), "topics to serve; empty: every topic seen on the graph")
+    discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01, max=60.0)
+    audio_gain: float = setting(0.04, "gain from the graph's float audio to the derived pcm-s16 tracks "
+                                "(mixtures peak near 20; 0.04 keeps them below full scale)",
+                                min=1e-6, max=100.0)

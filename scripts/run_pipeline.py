@@ -3,6 +3,7 @@
 
     python scripts/run_pipeline.py --episodes 3 --controller doa --out runs/demo
     python scripts/run_pipeline.py --set sim_node.mic_noise=0.1 --set controller_node.seed=3
+    python scripts/run_pipeline.py --live-view      # and open ws://localhost:8765 in Foxglove
 
 Builds the data the episodes need first (sound library, episode file; RIR banks of the sources are
 built by the simulator on first use), starts every node with its params file from params/ (plus the
@@ -29,8 +30,10 @@ import yaml
 from m2h_ros.errors import M2HError
 
 ROOT = Path(__file__).resolve().parents[1]
-NODES = ("recorder_node", "evaluator_node", "controller_node", "separator_node", "sim_node")  # start order
-STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "recorder_node")
+# Start order: the live view and the recorder first, so they hear every topic from its first message.
+NODES = ("live_view_node", "recorder_node", "evaluator_node", "controller_node", "separator_node", "sim_node")
+STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "recorder_node", "live_view_node")
+LIVE_VIEW_PORT = 8765  # Foxglove's default
 STOP_TIMEOUT_S = 20.0
 
 
@@ -50,6 +53,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="override any node parameter (repeatable)")
     parser.add_argument("--out", type=Path, default=None, help="run directory (default runs/<date-time>)")
     parser.add_argument("--no-record", action="store_true", help="run without the recorder")
+    parser.add_argument("--live-view", type=int, nargs="?", const=LIVE_VIEW_PORT, default=None, metavar="PORT",
+                        help=f"also serve the run to Foxglove on ws://127.0.0.1:PORT (default {LIVE_VIEW_PORT}); "
+                             "other live_view_node settings with --set")
     return parser.parse_args(argv)
 
 
@@ -69,6 +75,8 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
         params["separator_node"]["checkpoint"] = str(Path(args.separator_checkpoint).resolve())
     params["evaluator_node"]["output_dir"] = str(args.out / "scores")
     params["recorder_node"]["output"] = str(args.out / "bag")
+    if args.live_view is not None:
+        params["live_view_node"]["port"] = args.live_view
     for item in args.set:
         node, sep, assignment = item.partition(".")
         name, eq, value = assignment.partition("=")
@@ -147,13 +155,17 @@ def main(argv=None) -> int:
     env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "params" / "fastdds.xml"))
     print(f"[run] ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, run directory {args.out}", flush=True)
+    if args.live_view is not None:
+        view = params["live_view_node"]  # --set may change the host or the port
+        print(f"[run] live view: ws://{view.get('host', '127.0.0.1')}:{view['port']} (Foxglove: Open connection)",
+              flush=True)
     procs: dict[str, subprocess.Popen] = {}
     logs: dict[str, Path] = {}
     started = time.monotonic()
     interrupted = False
     try:
         for node in NODES:
-            if node == "recorder_node" and args.no_record:
+            if (node == "recorder_node" and args.no_record) or (node == "live_view_node" and args.live_view is None):
                 continue
             logs[node] = args.out / "logs" / f"{node}.log"
             command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
@@ -166,6 +178,8 @@ def main(argv=None) -> int:
             if early:
                 print(f"[run] {', '.join(early)} exited during the run; the simulator will report the "
                       f"missing answers", flush=True)
+                if "live_view_node" in early:  # the simulator waits for no viewer: end the run here
+                    stop(procs["sim_node"])
                 procs["sim_node"].wait()
                 break
             time.sleep(0.2)

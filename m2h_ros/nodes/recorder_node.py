@@ -11,7 +11,7 @@ from rclpy.node import Node
 from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
 from m2h_ros.node_configs import RecorderConfig
-from m2h_ros.ros.introspection import adapted_qos, message_class, offered_qos
+from m2h_ros.ros.introspection import adapted_qos, offered_qos, offered_topics
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import subscription_events
 from m2h_ros.ros.spin import run_node
@@ -40,37 +40,24 @@ class RecorderNode(Node):
         self.get_logger().info(f"recording to {self.writer.path}")
 
     def discover_topics(self) -> None:
-        wanted = set(self.config.topics)
-        for topic, types in self.get_topic_names_and_types():
-            if topic in self.recorded or topic in IGNORED_TOPICS or (wanted and topic not in wanted):
-                continue
-            # A topic seen only through its subscribers has no offer to adapt to (a best-effort
-            # subscription would drop messages under load): wait for a publisher, as rosbag2 does.
-            if not self.get_publishers_info_by_topic(topic):
-                continue
-            if len(types) != 1:
-                self.get_logger().warning(f"not recording {topic}: it carries several types {types}")
+        for offer in offered_topics(self, known=self.recorded.keys() | IGNORED_TOPICS, wanted=set(self.config.topics)):
+            topic, problem = offer.name, offer.problem
+            if not problem:
+                try:
+                    self.writer.add_topic(topic, offer.type_name, offered_qos=offered_qos(self, topic))
+                except BagError as exc:
+                    problem = str(exc)
+            if problem:
+                self.get_logger().warning(f"not recording {topic}: {problem}")
                 self.recorded[topic] = ""
                 continue
-            try:
-                msg_type = message_class(types[0])
-            except (ImportError, AttributeError, ValueError):
-                self.get_logger().warning(f"not recording {topic}: type {types[0]} is not importable")
-                self.recorded[topic] = ""
-                continue
-            try:
-                self.writer.add_topic(topic, types[0], offered_qos=offered_qos(self, topic))
-            except BagError as exc:
-                self.get_logger().warning(f"not recording {topic}: {exc}")
-                self.recorded[topic] = ""
-                continue
-            self.recorded[topic] = types[0]
+            self.recorded[topic] = offer.type_name
             self.counts[topic] = 0
             self.create_subscription(
-                msg_type, topic, lambda data, topic=topic: self.write(topic, data),
+                offer.msg_type, topic, lambda data, topic=topic: self.write(topic, data),
                 adapted_qos(self, topic), raw=True,
                 event_callbacks=subscription_events(self.get_logger(), topic))
-            self.get_logger().info(f"recording {topic} [{types[0]}]")
+            self.get_logger().info(f"recording {topic} [{offer.type_name}]")
 
     def write(self, topic: str, data: bytes) -> None:
         if self.held is not None:

@@ -1,7 +1,9 @@
-"""Message classes by type name, the QoS a subscriber should use to hear every publisher, and the QoS
-publishers offer (as rosbags records it)."""
+"""Message classes by type name, the topics a listener to the whole graph can take, the QoS a subscriber
+should use to hear every publisher, and the QoS publishers offer (as rosbags records it)."""
 
 import importlib
+from collections.abc import Collection, Container, Iterator
+from dataclasses import dataclass
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -14,6 +16,33 @@ def message_class(type_name: str) -> type:
     """``pkg/msg/Name`` -> the generated Python class."""
     package, kind, name = type_name.split("/")
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+@dataclass(frozen=True)
+class OfferedTopic:
+    """A topic with a publisher: its type and class, or why it cannot be taken (``problem``)."""
+
+    name: str
+    type_name: str = ""
+    msg_type: type | None = None
+    problem: str = ""
+
+
+def offered_topics(node: Node, *, known: Container[str], wanted: Collection[str] = ()) -> Iterator[OfferedTopic]:
+    """The topics not in ``known`` (and in ``wanted``, unless empty) that a publisher offers now.
+
+    A topic seen only through its subscribers has no offer to adapt to (a best-effort subscription would
+    drop messages under load): it is left for a later call, once a publisher exists, as rosbag2 does."""
+    for topic, types in node.get_topic_names_and_types():
+        if topic in known or (wanted and topic not in wanted) or not node.get_publishers_info_by_topic(topic):
+            continue
+        if len(types) != 1:
+            yield OfferedTopic(topic, problem=f"it carries several types {types}")
+            continue
+        try:
+            yield OfferedTopic(topic, types[0], message_class(types[0]))
+        except (ImportError, AttributeError, ValueError):
+            yield OfferedTopic(topic, types[0], problem=f"type {types[0]} is not importable")
 
 
 def adapted_qos(node: Node, topic: str) -> QoSProfile:

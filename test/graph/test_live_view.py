@@ -1,0 +1,168 @@
+"""live_view_node serves a pipeline run to a Foxglove WebSocket client (a plain `websockets` client speaking
+the protocol): every topic advertised as a ROS 2 channel with its message definition, messages that decode
+with that definition alone and equal what the recorder wrote, the derived pcm-s16 audio tracks; bound to
+localhost; a taken port is named."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import socket
+import struct
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import websockets
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from mcap_ros2._dynamic import generate_dynamic
+from pipeline_helpers import ROOT, ROS2RUN, node_env, tiny_sets
+from rosbags.rosbag2 import Reader
+
+from m2h_ros.io.msg_defs import typestore
+from m2h_ros.node_configs import LiveViewConfig
+
+pytestmark = pytest.mark.graph
+SUBPROTOCOL = "foxglove.sdk.v1"  # the only one foxglove-sdk 0.30's server accepts
+MESSAGE_DATA = 1  # binary opcode of a message on a subscribed channel
+CHECKED = ("/audio", "/odom", "/scores/step", "/audio/pcm", "/separator/audio/pcm")
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+async def watch(port: int, *, wanted: tuple[str, ...], count: int, timeout: float) -> tuple[dict, dict]:
+    """Connect (retrying until the server is up), subscribe to every channel as it is advertised and
+    collect messages until each wanted topic has ``count``: (channels by topic, topic -> payloads)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            ws = await websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None)
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.2)
+    channels: dict[int, dict] = {}
+    received: dict[str, list[bytes]] = {}
+    async with ws:
+        while any(len(received.get(t, ())) < count for t in wanted) and time.monotonic() < deadline:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
+            except TimeoutError:
+                continue
+            if isinstance(frame, str):
+                op = json.loads(frame)
+                if op["op"] == "advertise":
+                    channels.update({c["id"]: c for c in op["channels"]})
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                        {"id": c["id"], "channelId": c["id"]} for c in op["channels"]]}))
+            elif frame[0] == MESSAGE_DATA:
+                subscription, _ = struct.unpack_from("<IQ", frame, 1)  # subscription id = channel id here
+                received.setdefault(channels[subscription]["topic"], []).append(frame[13:])
+    return {c["topic"]: c for c in channels.values()}, received
+
+
+def protobuf_class(channel: dict):
+    """The message class a Foxglove client builds from a protobuf channel's FileDescriptorSet."""
+    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for file in files.file:
+        pool.Add(file)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+def recorded(bag, topic: str) -> dict[bytes, int]:
+    """The raw CDR payloads the recorder wrote for ``topic``, each with its index."""
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        return {bytes(data): k for k, (_, _, data) in enumerate(reader.messages(connections=conns))}
+
+
+def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir, tmp_path):
+    port = free_port()
+    # Free-running at 4 steps/s: the episode lasts a few seconds, time for the client to subscribe.
+    run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
+                            "--episodes", "1", "--controller", "random", "--mode", "free_running", "--rate", "4",
+                            "--live-view", str(port), "--set", "live_view_node.discovery_period_s=0.1",
+                            *tiny_sets()], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                           env=node_env(small_data_dir), cwd=ROOT)
+    try:
+        channels, received = asyncio.run(watch(port, wanted=CHECKED, count=3, timeout=180.0))
+        listening = listening_addresses(port)
+    finally:
+        out, _ = run.communicate(timeout=240)
+    assert run.returncode == 0, out
+    assert f"live view: ws://127.0.0.1:{port}" in out
+    assert listening == ["127.0.0.1"]  # the default binds to this machine only
+    store = typestore()
+    ros_topics = {"/audio", "/odom", "/agent_pose", "/episode", "/camera/rgb/image_raw", "/camera/depth/image_raw",
+                  "/separator/refined", "/separator/audio", "/cmd", "/scores/step", "/ground_truth/target"}
+    assert ros_topics <= set(channels), sorted(channels)
+    for topic in ros_topics:
+        channel = channels[topic]
+        assert (channel["encoding"], channel["schemaEncoding"]) == ("cdr", "ros2msg"), topic
+        assert channel["schema"] == store.generate_msgdef(channel["schemaName"], ros_version=2)[0], topic
+    for topic in CHECKED:
+        assert len(received.get(topic, ())) >= 3, (topic, {t: len(m) for t, m in received.items()})
+
+    decode = {t: generate_dynamic(channels[t]["schemaName"], channels[t]["schema"])[channels[t]["schemaName"]]
+              for t in ("/audio", "/odom", "/scores/step")}
+    audio = [decode["/audio"](payload) for payload in received["/audio"]]
+    assert all(a.sample_rate == 16000 and a.channels == 2 and len(a.samples) == 2 * 16000 for a in audio)
+    odom = [decode["/odom"](payload) for payload in received["/odom"]]
+    assert all(o.header.frame_id == "map" and np.isfinite(o.pose.pose.position.x) for o in odom)
+    scores = [decode["/scores/step"](payload) for payload in received["/scores/step"]]
+    assert all(np.isfinite(s.si_sdr) and s.episode_id == audio[0].episode_id for s in scores)
+    for topic in ("/audio", "/odom", "/scores/step"):  # byte for byte what the recorder wrote
+        in_bag = recorded(tmp_path / "bag", topic)
+        assert all(payload in in_bag for payload in received[topic]), topic
+
+    raw_audio = protobuf_class(channels["/audio/pcm"])
+    assert channels["/audio/pcm"]["schemaName"] == "foxglove.RawAudio"
+    by_stamp = {(a.header.stamp.sec, a.header.stamp.nanosec): a for a in audio}
+    matched = 0
+    for payload in received["/audio/pcm"]:
+        pcm = raw_audio.FromString(payload)
+        assert (pcm.format, pcm.sample_rate, pcm.number_of_channels) == ("pcm-s16", 16000, 2)
+        assert len(pcm.data) == 2 * 2 * 16000
+        source = by_stamp.get((pcm.timestamp.seconds, pcm.timestamp.nanos))
+        if source is not None:  # frames of (left, right) samples, scaled by the live view's gain
+            heard = np.frombuffer(pcm.data, "<i2").reshape(-1, 2).T / 32767.0
+            planar = np.asarray(source.samples, np.float32).reshape(2, -1)
+            expected = np.clip(planar * LiveViewConfig().audio_gain, -1.0, 1.0)
+            assert np.abs(heard - expected).max() < 1e-4 and np.abs(expected).max() > 0.05
+            matched += 1
+    assert matched >= 1
+    mono = protobuf_class(channels["/separator/audio/pcm"]).FromString(received["/separator/audio/pcm"][0])
+    assert (mono.format, mono.number_of_channels, len(mono.data)) == ("pcm-s16", 1, 2 * 16000)
+
+
+def listening_addresses(port: int) -> list[str]:
+    """The local addresses with a TCP socket listening on ``port`` (from /proc/net/tcp and tcp6)."""
+    found = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in open(table).read().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            address, hex_port = local.split(":")
+            if int(hex_port, 16) == port and state == "0A":  # 0A: LISTEN
+                found.append(socket.inet_ntoa(struct.pack("<I", int(address, 16))) if len(address) == 8
+                             else f"ipv6:{address}")
+    return found
+
+
+def test_a_taken_port_stops_the_node_naming_it(processes):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = processes.start([ROS2RUN, "m2h_ros", "live_view_node", "--ros-args", "-p", f"port:={port}"])
+        _, err = proc.communicate(timeout=60.0)
+    assert proc.returncode == 2, err
+    assert f"LiveViewError: cannot serve on 127.0.0.1:{port}" in err and "Address already in use" in err
