@@ -17,13 +17,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from m2h_ros.node_configs import (PIPELINE_NODES, ControllerConfig, EvaluatorConfig, RecorderConfig,
-                                  SeparatorNodeConfig, SimConfig)
+from m2h_ros.node_configs import (PIPELINE_NODES, ControllerConfig, EvaluatorConfig, LiveViewConfig,
+                                  RecorderConfig, SeparatorNodeConfig, SimConfig)
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "launch" / "pipeline.launch.py"
 CONFIGS = {"sim_node": SimConfig, "separator_node": SeparatorNodeConfig, "controller_node": ControllerConfig,
-           "evaluator_node": EvaluatorConfig, "recorder_node": RecorderConfig}
+           "evaluator_node": EvaluatorConfig, "recorder_node": RecorderConfig, "live_view_node": LiveViewConfig}
 STOOD_IN = ("launch", "launch.actions", "launch.conditions", "launch.event_handlers", "launch.events",
             "launch.substitutions", "launch_ros", "launch_ros.actions", "launch_ros.substitutions")
 
@@ -183,3 +183,12 @@ def test_the_simulator_waits_for_every_node_and_its_exit_ends_the_run(descriptio
 
 def test_the_launch_file_is_installed_with_the_package():
     assert 'glob("launch/*.launch.py")' in (ROOT / "setup.py").read_text()
+
+
+def test_the_live_view_is_opt_in(description, defaults):
+    view = nodes(description)["live_view_node"]
+    condition = view.kwargs["condition"]
+    assert type(condition).__name__ == "IfCondition"
+    assert yaml.safe_load(perform(argument(condition, 0, "predicate_expression"), defaults)) is False
+    for name, node in nodes(description).items():
+        assert name == "live_view_node" or node.kwargs.get("condition") is None, name
