@@ -117,7 +117,7 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
     audio = [decode["/audio"](payload) for payload in received["/audio"]]
     assert all(a.sample_rate == 16000 and a.channels == 2 and len(a.samples) == 2 * 16000 for a in audio)
     odom = [decode["/odom"](payload) for payload in received["/odom"]]
-    assert all(o.header.frame_id == "map" and np.isfinite(o.pose.pose.position.x) for o in odom)
+    assert all(o.child_frame_id == "base_link" and np.isfinite(o.pose.pose.position.x) for o in odom)
     scores = [decode["/scores/step"](payload) for payload in received["/scores/step"]]
     assert all(np.isfinite(s.si_sdr) and s.episode_id == audio[0].episode_id for s in scores)
     for topic in ("/audio", "/odom", "/scores/step"):  # byte for byte what the recorder wrote
