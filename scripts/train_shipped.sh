@@ -17,14 +17,14 @@
 #               48 scenes of split train48, entropy 0.01: stage 1 from the shipped pi^Q's weights (its Stop row
 #               new), 1,500 updates (480,000 env steps, seed 1); stages 2-5 each from the stage before (seeds 2-5,
 #               a fresh Adam, lr decaying again from 3e-4), 480,000 env steps each: about 1 h 45 min on both cores
-#               (session 31). Before session 31 the shipped pi^N was a twelve-stage chain of about 7 h 20 min.
+#               (AMD EPYC; docs/results/training/policy_navigation).
 #   approach:   the far-target composite's walking policy before T^N ("The composite Move2Hear far-target"):
 #               the original's three actions, no Stop, rewarded by the geodesic distance gained. It starts from
-#               pi^N + Stop's first two stages as shipped before session 24 (policy_navigation_stage2.pt: 1,500
+#               pi^N + Stop's first two stages, the recipe alone (policy_navigation_stage2.pt: 1,500
 #               updates each on the 12 train scenes, the kind's entropy 0.2, stage 2 from stage 1's weights), then
 #               2,000 updates (640,000 env steps) on the 24 scenes of split train24, entropy 0.02, kickstarted by
 #               the approach teacher; the last stage about 40 min with THREADS=1, as it ran; the whole
-#               command 1 h 09 min with THREADS=2 (session 32; other weights, as good on validation).
+#               command 1 h 09 min with THREADS=2 (other weights, as good on validation: docs/results/training/policy_approach).
 #
 #     scripts/train_shipped.sh quality [OUT]      # default runs/policy_quality; THREADS=1 ... for one thread
 #     cp OUT/stage2/policy.pt m2h_ros/models/default/policy_quality.pt
@@ -71,7 +71,7 @@ case "$KIND" in
     done
     echo "[train_shipped] pi^N + Stop: $OUT/stage5/policy.pt" ;;
   approach)
-    # pi^N + Stop's first two stages as shipped before session 24 (the recipe alone: 12 train scenes, entropy
+    # pi^N + Stop's first two stages (the recipe alone: 12 train scenes, entropy
     # 0.2), which is policy_navigation_stage2.pt, then the approach stage from their weights (Stop row dropped).
     navigation=@params/recipes/policy_navigation.args
     python scripts/train_policy.py "$navigation" --threads "$THREADS" --out "$OUT/navigation_stage1"

@@ -8,15 +8,15 @@
 * ``move2hear`` (the paper's Move2Hear): near-target pi^Q throughout; far-target a walker until step
   ``switch_step`` (T^N, chosen on the validation split), then pi^Q with a fresh GRU state (as the
   original's policy switch). ``navigation_stop`` says what walks and what its Stop does (:data:`STOP_MODES`):
-  ``"ends"`` (default since session 27): pi^N + Stop, whose Stop ends the episode, T^N = 100 (no switch:
+  ``"ends"`` (default): pi^N + Stop, whose Stop ends the episode, T^N = 100 (no switch:
   on 400 validation episodes per split pi^Q after T^N = 80 did not add, docs/design/policies.md);
-  ``"masked"`` (spec ``move2hear:approach``, the default until session 26): the folder's approach policy
+  ``"masked"`` (spec ``move2hear:approach``, the original's composite): the folder's approach policy
   (no Stop, as the original's far-target composite policy), else pi^N with its Stop masked (its
   probability dropped, the rest renormalised), T^N = 80, so the episode runs to its step limit;
   ``"hands_over"`` (spec ``move2hear:handover``): pi^N + Stop, its Stop the switch to pi^Q (or T^N = 80,
   whichever comes first), the episode runs to its step limit. ``move2hear:stop`` is ``"ends"`` with T^N = 80.
   ``near_switch_step`` T > 0 (default 0): near-target, the approach policy walks until step T, then pi^Q
-  (``scripts/experiments/near_switch_time.py``; session 26's near-target walkers, none shipped: docs/design/policies.md).
+  (``scripts/experiments/near_switch_time.py``; near-target walkers, none shipped: docs/design/policies.md).
 * ``novelty`` (Sec. 5 baselines): PPO on a count-based exploration reward 1 / sqrt(n) per visited
   node, the same network as pi^Q.
 * ``av_navigator`` (Sec. 5, after Chen et al. 2020): PPO on the mixed binaural spectrogram + the
@@ -57,8 +57,8 @@ from m2h_ros.paths import PACKAGE_DIR
 DEFAULT_POLICY_DIR = PACKAGE_DIR / "models" / "default"
 # What walks before T^N and what its Stop does (Move2Hear's ``navigation_stop``) -> the default T^N, each chosen
 # on the validation split (docs/design/policies.md): "ends" pi^N + Stop, the Stop ends a far-target episode (T^N = 100:
-# pi^Q never takes over, session 27); "masked" the folder's approach policy (no Stop), else pi^N with its Stop
-# masked (T^N = 80, the original's, re-checked in session 23); "hands_over" pi^N + Stop, its Stop the switch to
+# pi^Q never takes over); "masked" the folder's approach policy (no Stop), else pi^N with its Stop
+# masked (T^N = 80, the original's, re-checked on validation); "hands_over" pi^N + Stop, its Stop the switch to
 # pi^Q (T^N = 80, not swept).
 DEFAULT_SWITCH_STEPS = {"ends": 100, "masked": 80, "hands_over": 80}
 STOP_MODES = tuple(DEFAULT_SWITCH_STEPS)

@@ -43,8 +43,8 @@ class Variant:
 
 
 # Plain "move2hear" walks far-target with pi^N + Stop, whose Stop ends the episode, to step 100 (T^N chosen on
-# validation, session 27). "move2hear:approach" is the composite as the original trains it (an approach policy
-# without Stop, pi^Q from T^N = 80: the default until session 26); "move2hear:stop" pi^N + Stop until T^N = 80,
+# validation). "move2hear:approach" is the composite as the original trains it (an approach policy
+# without Stop, pi^Q from T^N = 80); "move2hear:stop" pi^N + Stop until T^N = 80,
 # then pi^Q; "move2hear:handover" pi^N + Stop whose Stop is the switch to pi^Q (docs/design/policies.md).
 APPROACH = ":approach"
 NAVIGATION_STOP = ":stop"

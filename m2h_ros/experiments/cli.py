@@ -47,8 +47,8 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
     parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "experiments" / Path(script).stem)
     parser.add_argument("--separator", type=Path,
                         help="separator checkpoint of the conditions that name none (default: the shipped one; "
-                             "m2h_ros/models/default/separator_compact_pretrained.pt re-runs a table made before "
-                             "session 19)")
+                             "m2h_ros/models/default/separator_compact_pretrained.pt re-runs a table made with the "
+                             "passively pretrained f^R)")
     parser.add_argument("--policy-checkpoint", type=Path,
                         help="the learned controllers' policy file (move2hear: a folder of them); default: the shipped ones")
     parser.add_argument("--no-progress", action="store_true")

@@ -4,8 +4,7 @@ On CUDA they ask for deterministic kernels (cuDNN's deterministic algorithms, Py
 deterministic mode, cuBLAS's fixed workspace): without them two runs of one seed, or a resumed run and
 an uninterrupted one, part after a few updates (measured on an H200, docs/design/measurements.md), and a
 resumed run must equal an uninterrupted one on any device. And float32 stays float32: cuDNN's default
-TF32 convolutions put the shipped separator's output 5.6e-4 of its peak from the CPU's (an H200,
-session 23), where IEEE float32 on either device agree to float tolerance."""
+TF32 convolutions put the shipped separator's output 5.6e-4 of its peak from the CPU's (an H200), where IEEE float32 on either device agree to float tolerance."""
 
 from __future__ import annotations
 

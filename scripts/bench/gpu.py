@@ -19,7 +19,7 @@ the compact and paper presets.
 Each candidate's CPU and CUDA figures are timed in alternating rounds (the CPU with all its cores as
 torch threads unless ``--cpu-threads``), after warm-up; CUDA timings synchronise the device. CUDA runs
 with the project's settings (``models.device.resolve_device``: deterministic kernels, float32 without
-TF32; session 21's figures had cuDNN's autotuning and TF32 convolutions). Printed: the
+TF32; figures taken with cuDNN's autotuning and TF32 convolutions differ). Printed: the
 median and the minimum ms of ``--repeats`` rounds and the CPU / CUDA ratio of the medians, with the load
 average before and after. Without CUDA it prints the CPU figures alone and says so.
 

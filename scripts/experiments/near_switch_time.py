@@ -9,7 +9,7 @@ three actions, trained on the geodesic distance gained) acts until step T, then 
 as the far-target composite switches at T^N. T = 0 is the paper's near-target Move2Hear (pi^Q throughout,
 the default); 20 is the approach policy throughout (a near-target episode has 20 actions). Each T is
 compared with T = 0 on the same episodes. Choose on the validation split (``--scene-split val``), report on
-test. Why (docs/design/policies.md, sessions 20-26): pi^Q separates as well as a privileged walk to the target
+test. Why (docs/design/policies.md): pi^Q separates as well as a privileged walk to the target
 where it ends on the target's node, and misses the node in about 45% of its walks.
 """
 

@@ -9,7 +9,7 @@ Move2Hear on far-target test episodes walks until step T^N, then improves the es
 is pi^Q throughout. Each T^N is also compared with the default's (100) on the same episodes. ``move2hear``
 walks with pi^N + Stop, whose Stop ends the episode; ``--controllers move2hear:approach`` with the approach
 policy (no Stop, as the original's composite: every episode runs to step 100; its T^N is 80, the original's).
-Pick T^N on the validation split: ``--scene-split val`` (session 27 chose 100 for pi^N + Stop, 400 episodes
+Pick T^N on the validation split: ``--scene-split val`` (100 was chosen for pi^N + Stop, 400 episodes
 per split against 80; docs/design/policies.md). The paper's finding (Supp. Sec. 4): switching late enough to reach
 the target, early enough to refine there, beats both extremes. Needs the shipped pi^Q and pi^N (docs/design/policies.md).
 """

@@ -148,7 +148,7 @@ def start_graph(processes, data_dir, tmp_path, *, sim: dict, evaluator: bool = T
 def test_killed_controller_is_named_and_the_bag_stays_readable(processes, small_library, small_data_dir, tmp_path):
     # Enough episodes that the run cannot end before the kill. The timeout leaves room for the separator's
     # publishes to stall after the kill (likely Fast DDS's shared-memory transport waiting on the dead
-    # reader's port): with 3 s, one fresh-clone run in session 20 named separator_node instead.
+    # reader's port): with 3 s, a fresh-clone run once named separator_node instead.
     procs = start_graph(processes, small_data_dir, tmp_path, sim=dict(num_episodes=30, step_timeout_s=10.0))
     bag = tmp_path / "bag"
     deadline = time.monotonic() + 120

@@ -98,7 +98,7 @@ def test_a_differing_live_score_is_reported(tmp_path):
 
 
 def test_a_bag_with_the_old_stft_distance_gets_a_note(tmp_path):
-    def frobenius_era(episode_id, step, scores):   # what the evaluator recorded before session 11
+    def frobenius_era(episode_id, step, scores):   # what an older evaluator recorded
         return dataclasses.replace(scores, stft_distance=scores.stft_distance * 1000.0)
 
     write_synthetic_run(tmp_path / "bag", NEAR, live_score=frobenius_era)

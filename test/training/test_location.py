@@ -54,7 +54,7 @@ def test_a_resume_state_from_before_the_option_continues(fast_env, separator_pat
     path = tmp_path / "run" / "resume.pt"
     state = torch.load(path, weights_only=True)
     del state["config"]["location_coef"], state["location_head"]  # as written before it existed
-    del state["config"]["env"]["spectrogram"]  # ... and before EnvConfig.spectrogram (session 15)
+    del state["config"]["env"]["spectrogram"]  # ... and before EnvConfig.spectrogram existed
     torch.save(state, path)
     assert len(train(config, folder_library, out_dir=tmp_path / "run", progress=False).history) == config.updates
     with pytest.raises(CheckpointError, match="other settings.*location_coef"):

@@ -123,7 +123,7 @@ def test_the_shipped_pi_n_is_the_fifth_stage_of_train_shipped_navigation(monkeyp
     assert "init=m2h_ros/models/default/policy_quality.pt\n    for stage in 1 2 3 4 5; do" in script
     assert '--threads "$THREADS" --scene-split train48 --entropy-coef 0.01 \\\n            --seed "$stage"' in script
     assert "cp OUT/stage5/policy.pt m2h_ros/models/default/policy_navigation.pt" in script
-    # The approach policy starts where it did: pi^N + Stop's first two stages, the recipe alone (shipped before session 24).
+    # The approach policy starts where it did: pi^N + Stop's first two stages, the recipe alone (policy_navigation_stage2.pt).
     assert ('--init-policy "$OUT/navigation_stage1/policy.pt" \\\n        --out "$OUT/navigation_stage2"' in script
             and '--init-policy "$OUT/navigation_stage2/policy.pt" \\\n        --out "$OUT/approach"' in script)
 

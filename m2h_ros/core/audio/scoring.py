@@ -16,9 +16,9 @@ An estimate is a monaural magnitude (..., F, T). It is rebuilt into a waveform t
 
 ``stft_distance`` is the original code's: the estimated magnitude with the dry target's phase against
 the dry target's complex spectrogram, mean squared over real and imaginary parts
-(:func:`~m2h_ros.core.audio.metrics.stft_distance`). Until session 11 it was the Frobenius norm of
-the STFT of the ground-truth-phase rebuild minus the target's: results tables say which in their
-note, and bags recorded before hold that one.
+(:func:`~m2h_ros.core.audio.metrics.stft_distance`). Older tables and bags may hold a Frobenius norm of
+the STFT of the ground-truth-phase rebuild minus the target's instead: results tables say which in their
+note.
 """
 
 from __future__ import annotations

@@ -66,11 +66,11 @@ OBSTACLE_COLOR = (0.42, 0.30, 0.20)
 
 SCENE_SPLITS: dict[str, tuple[int, ...]] = {
     "train": tuple(range(0, 12)),
-    # The train scenes and 12 more (session 22: the learned walkers approach the target much less in unseen
+    # The train scenes and 12 more (the learned walkers approach the target much less in unseen
     # scenes than in these, docs/design/policies.md); its first 12 are train's, their banks shared (same fingerprints).
     # Seed 19 is left out: one of its rooms rings longer (band RT60 1.05 s) than the 1.0 s RIRs hold.
     "train24": (*range(0, 19), *range(20, 25)),
-    # train24 and 24 more (session 29: pi^N + Stop still walks unseen scenes much worse, docs/design/policies.md).
+    # train24 and 24 more (pi^N + Stop still walks unseen scenes much worse, docs/design/policies.md).
     # Left out as 19 is: seeds whose rooms ring to 0.99 s or longer (Eyring, any band): 35, 40, 42, 43.
     "train48": (*range(0, 19), *range(20, 35), *range(36, 40), 41, *range(44, 53)),
     "val": tuple(range(1000, 1003)),
