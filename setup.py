@@ -5,13 +5,15 @@ from glob import glob
 from setuptools import find_packages, setup
 
 PACKAGE = "m2h_ros"
-NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node")
+NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node",
+         "capture_node")
 
 setup(
     name=PACKAGE,
     version="1.0.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
-    package_data={PACKAGE: ["models/default/*.pt", "models/default/*.json", "core/sounds/library_index.json"]},
+    package_data={PACKAGE: ["models/default/*.pt", "models/default/*.json", "core/sounds/library_index.json",
+                           "io/virtual_mic.c"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -43,6 +43,10 @@ class EpisodeError(M2HError):
     """An episode file or episode specification is invalid."""
 
 
+class MicrophoneError(M2HError):
+    """No usable audio input: PortAudio missing, no such device, or a device that cannot deliver."""
+
+
 class PipelineError(M2HError):
     """The node graph broke its step contract: a node stopped answering, or sent unusable data."""
 

@@ -112,3 +112,24 @@ class LiveViewConfig(Config):
     audio_gain: float = setting(0.04, "gain from the graph's float audio to the derived pcm-s16 tracks "
                                 "(mixtures peak near 20; 0.04 keeps them below full scale)",
                                 min=1e-6, max=100.0)
+
+
+@dataclass(frozen=True)
+class CaptureNodeConfig(Config):
+    device: str = setting("", "audio input: empty = the default input device, a number = its PortAudio index, "
+                          "else (part of) its name; capture_node --list-devices lists them")
+    channels: tuple[int, ...] = setting((0, 1), "device channels to publish, 0-based, in this order (the "
+                                        "separator takes two: left ear, right ear)")
+    sample_rate: int = setting(0, "capture rate in Hz; 0: the device's default rate. Frames are resampled "
+                               "to the separator's 16 kHz", min=0, max=768000)
+    frame_s: float = setting(1.0, "seconds of audio per published frame (the separator takes 1 s)",
+                             min=0.01, max=60.0)
+    hop_s: float = setting(1.0, "seconds between the starts of consecutive frames (< frame_s: overlapping "
+                           "frames, an estimate more often)", min=0.01, max=60.0)
+    block_s: float = setting(0.02, "seconds of audio PortAudio hands over per callback", min=0.001, max=1.0)
+    queue_s: float = setting(2.0, "seconds of audio kept between PortAudio's thread and the publisher; when "
+                             "the node falls further behind, blocks are lost and counted", min=0.05, max=60.0)
+    episode_id: str = setting("live", "episode id of the published frames (the separator restarts its memory "
+                              "when it changes)")
+    diagnostics_period_s: float = setting(1.0, "seconds between status reports on /diagnostics",
+                                          min=0.05, max=3600.0)

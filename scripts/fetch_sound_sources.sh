@@ -1,7 +1,6 @@
 #!/usr/bin/env bash
 # Fetch the Debian packages the sound library is built from, without installing them system-wide:
-# `apt-get download` + `dpkg-deb -x` into a cache folder. Idempotent: a package whose marker file
-# names the wanted version is skipped, so a second run is a fast no-op.
+# scripts/fetch_debs.sh (`apt-get download` + `dpkg-deb -x`) into a cache folder; a second run is a fast no-op.
 #
 # Usage: scripts/fetch_sound_sources.sh [DEST]
 #   DEST defaults to $M2H_SOUND_SOURCES, else ${M2H_DATA_DIR:-~/.cache/m2h_ros}/sound_sources
@@ -26,35 +25,4 @@ PACKAGES=(
   "libmysofa1=1.3.1~dfsg0-1=./usr/share/libmysofa/MIT_KEMAR_normal_pinna.sofa"
 )
 
-mkdir -p "$DEST/root" "$DEST/markers"
-missing=()
-for entry in "${PACKAGES[@]}"; do
-  IFS='=' read -r pkg version subdir <<<"$entry"
-  marker="$DEST/markers/$pkg"
-  if [[ -f "$marker" && "$(cat "$marker")" == "$version" ]]; then continue; fi
-  missing+=("$entry")
-done
-if [[ ${#missing[@]} -eq 0 ]]; then
-  echo "sound sources up to date in $DEST"
-  exit 0
-fi
-
-if ! apt-cache show "${missing[0]%%=*}" >/dev/null 2>&1; then
-  apt-get update -qq
-fi
-workdir="$(mktemp -d "$DEST/.download.XXXXXX")"
-trap 'rm -rf "$workdir"' EXIT
-for entry in "${missing[@]}"; do
-  IFS='=' read -r pkg version subdir <<<"$entry"
-  echo "fetching $pkg $version"
-  (cd "$workdir" && apt-get download -q -o APT::Sandbox::User="$(id -un)" "$pkg=$version")
-  deb="$(ls "$workdir"/"${pkg}"_*.deb)"
-  if [[ -n "$subdir" ]]; then
-    dpkg-deb --fsys-tarfile "$deb" | tar -x -C "$DEST/root" --wildcards "$subdir" "./usr/share/doc/$pkg/copyright"
-  else
-    dpkg-deb -x "$deb" "$DEST/root"
-  fi
-  rm -f "$deb"
-  echo "$version" >"$DEST/markers/$pkg"
-done
-echo "sound sources ready in $DEST"
+echo "sound sources: $("$(dirname "${BASH_SOURCE[0]}")/fetch_debs.sh" "$DEST" "${PACKAGES[@]}" | tail -n 1)"

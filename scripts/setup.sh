@@ -59,6 +59,10 @@ fi
 
 # --- sound sources: Debian packages downloaded and unpacked into the data dir (not installed) ---
 "$ROOT/scripts/fetch_sound_sources.sh" >/dev/null
+# --- microphones: PortAudio and ALSA's headers, unpacked the same way (skipped where installed) ---
+if ! ldconfig -p 2>/dev/null | grep -q libportaudio.so.2 || [ ! -f /usr/include/alsa/pcm_external.h ]; then
+  "$ROOT/scripts/fetch_audio_libs.sh" >/dev/null
+fi
 
 # --- colcon build of m2h_msgs (ament_cmake) and m2h_ros (ament_python) ----------------------
 # --symlink-install: Python sources and params are used in place, so edits need no rebuild;

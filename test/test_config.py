@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 NODE_CONFIGS = {"sim_node": node_configs.SimConfig, "separator_node": node_configs.SeparatorNodeConfig,
                 "controller_node": node_configs.ControllerConfig,
                 "evaluator_node": node_configs.EvaluatorConfig, "recorder_node": node_configs.RecorderConfig,
-                "live_view_node": node_configs.LiveViewConfig}
+                "live_view_node": node_configs.LiveViewConfig, "capture_node": node_configs.CaptureNodeConfig}
 
 
 @pytest.mark.parametrize("node", sorted(NODE_CONFIGS))
