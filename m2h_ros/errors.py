@@ -55,6 +55,10 @@ class LiveViewError(M2HError):
     """The live view cannot serve: its address is unusable or its port is taken."""
 
 
+class VideoError(M2HError):
+    """A video cannot be made: the encoder failed or is missing."""
+
+
 def reports_errors(prog: str) -> Callable[[Callable[P, int | None]], Callable[P, int]]:
     """Decorates a command's ``main``: an M2HError ends it as argparse ends a bad option, with one line
     ``PROG: error: MESSAGE`` on stderr and exit code 2, not a traceback (the error names the problem;
