@@ -30,8 +30,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch: idle OpenMP
 
 import torch  # noqa: E402
 
-from m2h_ros.agents.registry import (CONTROLLER_NAMES, GREEDY, LEARNED, LEARNED_VARIANTS, SUPERVISED,  # noqa: E402
-                                     TRAINING_FREE, controller_class, make_controller)
+from m2h_ros.agents.registry import (CONTROLLER_NAMES, GREEDY, LEARNED, LEARNED_VARIANTS, PLUGINS,  # noqa: E402
+                                     SUPERVISED, TRAINING_FREE, controller_class, make_controller)
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differences, paired_table,  # noqa: E402
                                   summarize, write_results)
@@ -62,7 +62,7 @@ def names(text: str, *, allowed: Sequence[str], what: str) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controllers", default=",".join((*TRAINING_FREE, *LEARNED, *SUPERVISED)),
+    parser.add_argument("--controllers", default=",".join((*TRAINING_FREE, *LEARNED, *SUPERVISED, *PLUGINS)),
                         help="comma-separated controller names (default: all; --list shows them); a learned "
                              "one with ':greedy' takes the most likely action instead of sampling")
     parser.add_argument("--task", choices=TASKS, default="near_target")
@@ -133,6 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         for name in (*TRAINING_FREE, *LEARNED, *SUPERVISED):
             print(f"{name:<18} {controller_class(name).summary}")
+        for name, target in PLUGINS.items():  # imported to show its summary: a broken plugin is named here
+            print(f"{name:<18} {controller_class(name).summary} (plugin: {target})")
         for spec, variant in LEARNED_VARIANTS.items():
             print(f"{spec:<18} {variant.summary}")
         print(f"(a learned controller as <name>{GREEDY} takes the most likely action instead of sampling)")

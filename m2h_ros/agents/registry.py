@@ -1,10 +1,16 @@
 """Controllers by name: what ``controller_node``'s ``policy`` parameter and ``scripts/evaluate.py``
-accept. Implementations are imported when made, so listing names imports nothing heavy."""
+accept. Implementations are imported when made, so listing names imports nothing heavy.
+
+Other packages add controllers without editing this one: an entry point in the group
+``m2h_ros.controllers`` (``name = "module:Class"``, a :class:`Controller` subclass) makes ``name`` a
+controller of the node, of the launch file and of ``scripts/evaluate.py``
+(docs/how-to/add-a-controller.md)."""
 
 from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 
 from m2h_ros.agents.base import Controller
 from m2h_ros.errors import ConfigError
@@ -68,7 +74,28 @@ LEARNED_VARIANTS = {
 # evaluates sampled actions); results are labelled with the whole spec.
 GREEDY = ":greedy"
 LEARNED_SPECS = (*LEARNED, *LEARNED_VARIANTS)
-CONTROLLER_NAMES = (*TRAINING_FREE, *LEARNED_SPECS, *SUPERVISED, *(spec + GREEDY for spec in LEARNED_SPECS))
+BUILT_IN_NAMES = (*TRAINING_FREE, *LEARNED_SPECS, *SUPERVISED, *(spec + GREEDY for spec in LEARNED_SPECS))
+PLUGIN_GROUP = "m2h_ros.controllers"
+
+
+def _plugins() -> dict[str, str]:
+    """name -> "module:Class" of the controllers installed packages register under PLUGIN_GROUP. Reads
+    package metadata only; a plugin's module is imported when its controller is made."""
+    found: dict[str, str] = {}
+    for entry in entry_points(group=PLUGIN_GROUP):
+        where = f"entry point {entry.name!r} of {entry.dist.name if entry.dist else 'an unknown package'}"
+        if entry.name in BUILT_IN_NAMES or entry.name in found:
+            raise ConfigError(f"{where} in {PLUGIN_GROUP} reuses the controller name {entry.name!r}; choose another")
+        if ":" in entry.name or ":" not in entry.value:
+            raise ConfigError(f"{where} in {PLUGIN_GROUP} must read NAME = \"module:Class\" with no ':' in NAME, "
+                              f"got {entry.name} = {entry.value!r}")
+        found[entry.name] = entry.value
+    return found
+
+
+# Read once per process, at import: the node's parameter choices and the launch file see the same set.
+PLUGINS = _plugins()
+CONTROLLER_NAMES = (*BUILT_IN_NAMES, *PLUGINS)
 
 
 def _learned_spec(spec: str) -> tuple[str, dict] | None:
@@ -87,11 +114,18 @@ def is_learned(name: str) -> bool:
 
 def controller_class(name: str) -> type[Controller]:
     learned = _learned_spec(name)
-    target = TRAINING_FREE.get(name) or SUPERVISED.get(name) or (LEARNED[learned[0]] if learned else None)
+    target = (TRAINING_FREE.get(name) or SUPERVISED.get(name) or PLUGINS.get(name)
+              or (LEARNED[learned[0]] if learned else None))
     if target is None:
         raise ConfigError(f"unknown controller {name!r}; available: {', '.join(CONTROLLER_NAMES)}")
-    module, cls = target.split(":")
-    return getattr(importlib.import_module(module), cls)
+    module, _, attribute = target.partition(":")
+    try:
+        cls = getattr(importlib.import_module(module), attribute)
+    except (ImportError, AttributeError) as error:
+        raise ConfigError(f"controller {name!r}: cannot load {target!r} ({error})") from error
+    if not (isinstance(cls, type) and issubclass(cls, Controller)):
+        raise ConfigError(f"controller {name!r}: {target!r} is not a subclass of m2h_ros.agents.base.Controller")
+    return cls
 
 
 def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str = "", **options) -> Controller:
@@ -109,8 +143,10 @@ def make_controller(name: str, n_slots: int, *, seed: int = 0, checkpoint: str =
         if clash:
             raise ConfigError(f"controller {name!r} sets {', '.join(clash)} itself; do not pass it as an option")
         options = {**options, **learned[1]}
+    # A plugin gets ``checkpoint`` only when one is set, so one that loads no model need not take it.
+    given = {**options, "checkpoint": checkpoint} if checkpoint or name not in PLUGINS else options
     try:
-        controller = cls(n_slots, seed=seed, checkpoint=checkpoint, **options)
+        controller = cls(n_slots, seed=seed, **given)
     except TypeError as error:  # an option the class does not take
         raise ConfigError(f"controller {name!r}: {error}") from error
     if learned:
