@@ -134,6 +134,14 @@ def small_library(sound_sources, small_data_dir):
 
 
 @pytest.fixture(scope="session")
+def speech_under_music(small_library):
+    """known_mixture.speech_under_music of the small library: (stereo mixture, reference) at 16 kHz."""
+    from known_mixture import speech_under_music
+
+    return speech_under_music(small_library)
+
+
+@pytest.fixture(scope="session")
 def fast_acoustics():
     """Short RIRs, image sources up to order 2, no ray-traced tail: a small scene's bank builds in ~1 s."""
     from m2h_ros.core.world.acoustics import AcousticsConfig

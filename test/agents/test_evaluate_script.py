@@ -1,11 +1,14 @@
 """scripts/evaluate.py: clear errors, and every controller end to end on a tiny setup."""
 
+import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from m2h_ros.agents.registry import CONTROLLER_NAMES, GREEDY, TRAINING_FREE
+from m2h_ros.agents.learned import DEFAULT_POLICY_DIR
+from m2h_ros.agents.registry import CONTROLLER_NAMES, GREEDY, LEARNED, SUPERVISED, TRAINING_FREE
 from m2h_ros.core.results import write_results
 from m2h_ros.errors import ConfigError
 
@@ -35,12 +38,19 @@ def test_list_names_every_controller(evaluate, capsys):
 def test_every_controller_end_to_end_on_tiny_episodes(evaluate, small_episodes, folder_library, env_config, separator,
                                                       tmp_path):
     episodes = small_episodes(count=2, max_steps=3, seed=5)
+    controllers = [*TRAINING_FREE, *LEARNED, *SUPERVISED]  # the learned ones with the shipped models
     args = evaluate.build_parser().parse_args(["--slots", "2", "--threads", "1", "--no-progress"])
-    results, model_files = evaluate.run(args, list(TRAINING_FREE), episodes, loaded=separator, library=folder_library,
+    env_config = dataclasses.replace(env_config, camera=True)  # the learned ones and Gan et al. see
+    results, model_files = evaluate.run(args, controllers, episodes, loaded=separator, library=folder_library,
                                         env_config=env_config)
-    assert model_files == {name: [] for name in TRAINING_FREE}  # nothing trained to name in the setup line
-    assert [(r.controller, r.episode_id) for r in results] == [(c, e.episode_id) for c in TRAINING_FREE
+    assert {name: files for name, files in model_files.items() if not files} == {name: [] for name in TRAINING_FREE}
+    shipped = Path(DEFAULT_POLICY_DIR).resolve()
+    for name in (*LEARNED, *SUPERVISED):  # each ran its shipped model
+        assert model_files[name] and all(Path(f).resolve().parent == shipped for f in model_files[name]), name
+    assert [(r.controller, r.episode_id) for r in results] == [(c, e.episode_id) for c in controllers
                                                                for e in episodes]
+    assert all(np.isfinite(r.final("si_sdr")) for r in results)
+    results = [r for r in results if r.controller in TRAINING_FREE]  # the tables of the baselines
     paths = write_results(results, tmp_path, title="tiny", command="python scripts/evaluate.py --count 2",
                           reference="stand_in_place")
     table = paths["markdown"].read_text()
