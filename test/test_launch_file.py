@@ -142,7 +142,7 @@ def resolved_config(node: Entity, defaults: dict[str, str]):
 
 def test_every_node_starts_with_its_own_params_file(description):
     started = nodes(description)
-    assert set(started) == {p.stem for p in (ROOT / "params").glob("*.yaml")}
+    assert {"sim_node", *PIPELINE_NODES} <= set(started)  # (nodes such as a microphone's are optional)
     for name, node in started.items():
         assert node.kwargs["package"] == "m2h_ros" and node.kwargs["executable"] == name
         files = [p for p in node.kwargs["parameters"] if isinstance(p, str | Path)]
