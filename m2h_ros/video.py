@@ -124,8 +124,8 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
     return media
 
 
-def render_frames(media: EpisodeMedia, *, width: int, height: int):
-    """One RGB picture (height, width, 3) uint8 per step."""
+def render_frames(media: EpisodeMedia, *, width: int, height: int, only: int | None = None):
+    """One RGB picture (height, width, 3) uint8 per step (or only the step ``only``)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
     from matplotlib.figure import Figure  # noqa: PLC0415
 
@@ -136,6 +136,8 @@ def render_frames(media: EpisodeMedia, *, width: int, height: int):
                    log_magnitude(stft(media.estimate[s])) if s in media.estimate else None) for s in steps}
     vmax = max(float(np.percentile(m, 99.5)) for m, _ in spectra.values())
     for k, step in enumerate(steps):
+        if only is not None and step != only:
+            continue
         fig = Figure(figsize=(width / 100, height / 100), dpi=100)
         grid = fig.add_gridspec(2, 3, width_ratios=[1.15, 1, 1], left=0.04, right=0.99, bottom=0.1, top=0.86,
                                 wspace=0.28, hspace=0.45)
@@ -190,6 +192,17 @@ def _draw_map(ax, media: EpisodeMedia, path: np.ndarray, pose) -> None:
     ax.set_aspect("equal")
     ax.set_title("map: path and sources", fontsize=6)
     ax.tick_params(labelsize=5)
+
+
+def write_still(media: EpisodeMedia, out: Path, *, step: int, width: int = 640, height: int = 360) -> Path:
+    """The picture of one step as a PNG (for documents)."""
+    from matplotlib.image import imsave  # noqa: PLC0415
+
+    if step not in media.mixture:
+        raise ConfigError(f"step {step} is not in episode {media.episode_id} (steps {media.steps[0]}..{media.steps[-1]})")
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    imsave(out, next(render_frames(media, width=width, height=height, only=step)))
+    return Path(out)
 
 
 def ffmpeg_exe() -> str:

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from m2h_ros.errors import ConfigError, reports_errors
-from m2h_ros.video import make_video, read_episode
+from m2h_ros.video import make_video, read_episode, write_still
 
 
 def size(text: str) -> tuple[int, int]:
@@ -36,6 +36,8 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=size, default=(640, 360), help="WIDTHxHEIGHT, even (default 640x360)")
     parser.add_argument("--fps", type=int, default=4, help="frame rate of the file (pictures change per step)")
     parser.add_argument("--audio-kbps", type=int, default=32, help="AAC bit rate of each audio stream")
+    parser.add_argument("--still", type=Path, default=None, help="also write one step's picture as this PNG")
+    parser.add_argument("--still-step", type=int, default=None, help="the step --still shows (default: the middle)")
     args = parser.parse_args(argv)
     bag = args.run / "bag" if (args.run / "bag" / "metadata.yaml").exists() else args.run
     if not (bag / "metadata.yaml").exists():
@@ -44,6 +46,9 @@ def main(argv=None) -> int:
     out = args.out or bag.parent / "videos" / f"{media.episode_id.replace('/', '_')}.mp4"
     width, height = args.size
     make_video(media, out, width=width, height=height, fps=args.fps, audio_kbps=args.audio_kbps)
+    if args.still:
+        step = media.steps[len(media.steps) // 2] if args.still_step is None else args.still_step
+        print(f"{write_still(media, args.still, step=step, width=width, height=height)}: step {step}")
     print(f"{out}: {len(media.steps)} steps, {out.stat().st_size / 1e6:.2f} MB; audio stream 1 the mixture, "
           f"stream 2 the separated estimate")
     return 0

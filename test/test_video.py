@@ -11,6 +11,7 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
+from matplotlib.image import imread
 from scipy.signal import correlate
 
 from m2h_ros import topics
@@ -28,7 +29,8 @@ def video(tmp_path_factory):
     run = tmp_path_factory.mktemp("run")
     write_synthetic_run(run / "bag", SyntheticRun(episodes=2, max_steps=STEPS - 1))
     result = subprocess.run([sys.executable, str(ROOT / "scripts" / "make_video.py"), str(run), "--episode", "1",
-                             "--size", "320x180", "--fps", str(FPS), "--audio-kbps", "128"], capture_output=True, text=True, cwd=ROOT)
+                             "--size", "320x180", "--fps", str(FPS), "--audio-kbps", "128",
+                             "--still", str(run / "still.png"), "--still-step", "2"], capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     return run, run / "videos" / "test_near_target_heard_000001.mp4"
 
@@ -81,6 +83,16 @@ def test_both_audio_streams_carry_the_bags_audio(video):
     for ear in range(2):
         assert best_correlation(heard[ear], mixture[ear]) > 0.98, ear
     assert best_correlation(separated[0], estimate[0]) > 0.98
+
+
+def test_the_still_is_its_steps_picture(video):
+    run, path = video
+    still = imread(run / "still.png")[..., :3] * 255.0
+    assert still.shape == (180, 320, 3)
+    with av.open(str(path)) as container:
+        pictures = [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)][::FPS]
+    distance = [float(np.abs(picture - still).mean()) for picture in pictures]
+    assert int(np.argmin(distance)) == 2, distance
 
 
 def test_an_unknown_episode_is_named(video):
