@@ -146,6 +146,47 @@ def start_graph(processes, data_dir, tmp_path, *, sim: dict, evaluator: bool = T
     return procs
 
 
+def graph_subscribers(prefix: str, *, wait_for: set[str], present: str, timeout: float = 60.0) -> dict[str, set[str]]:
+    """Topic -> names of the nodes subscribed to it, for the running graph's topics under ``prefix``, read
+    by a probe node once every node in ``wait_for`` subscribes to each of them and ``present`` has
+    subscriptions of its own (so a node still starting up is not taken for one that does not listen)."""
+    import rclpy
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        probe = rclpy.create_node("ground_truth_probe", context=context)
+        deadline = time.monotonic() + timeout
+        while True:
+            found = {name: {info.node_name for info in probe.get_subscriptions_info_by_topic(name)}
+                     for name, _ in probe.get_topic_names_and_types() if name.startswith(prefix)}
+            ready = (found and all(wait_for <= nodes for nodes in found.values())
+                     and present in probe.get_node_names()
+                     and probe.get_subscriber_names_and_types_by_node(present, "/"))
+            if ready:
+                return found
+            assert time.monotonic() < deadline, f"the graph never settled: {found}, nodes {probe.get_node_names()}"
+            time.sleep(0.2)
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_only_the_evaluator_and_the_recorder_subscribe_to_the_ground_truth(processes, small_library, small_data_dir,
+                                                                          tmp_path):
+    """The controller never sees the ground truth: in the running graph, nothing but the evaluator (which
+    scores) and the recorder (which keeps everything) subscribes to a topic under /ground_truth."""
+    procs = start_graph(processes, small_data_dir, tmp_path, sim=dict(num_episodes=30))
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "scores" / "results.json").exists():  # every node at work: an episode is scored
+        if procs["sim_node"].poll() is not None or time.monotonic() > deadline:
+            pytest.fail(f"the run never got going: {procs['sim_node'].communicate()[1]}")
+        time.sleep(0.1)
+    subscribers = graph_subscribers("/ground_truth/", wait_for={"evaluator_node", "recorder_node"},
+                                    present="controller_node")
+    assert topics.GROUND_TRUTH in subscribers
+    assert subscribers == {topic: {"evaluator_node", "recorder_node"} for topic in subscribers}
+
+
 def test_killed_controller_is_named_and_the_bag_stays_readable(processes, small_library, small_data_dir, tmp_path):
     # Enough episodes that the run cannot end before the kill. The timeout leaves room for the separator's
     # publishes to stall after the kill (likely Fast DDS's shared-memory transport waiting on the dead
