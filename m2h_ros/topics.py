@@ -17,3 +17,12 @@ SEPARATED_AUDIO = "separator/audio"  # m2h_msgs/BinauralAudio, 1 channel: refine
 COMMAND = "cmd"  # m2h_msgs/MotionCommand (controller)
 STEP_SCORE = "scores/step"  # m2h_msgs/StepScore (evaluator)
 EPISODE_SCORE = "scores/episode"  # m2h_msgs/EpisodeScore (evaluator)
+# Seeing and hearing a run (rviz, Foxglove); TF goes on the standard /tf and /tf_static.
+MAP = "map"  # nav_msgs/OccupancyGrid, latched: the episode's floor plan (sim)
+PATH = "path"  # visualization_msgs/MarkerArray: where the robot has been this episode (sim)
+SOURCES = "/ground_truth/sources"  # visualization_msgs/MarkerArray: target and distractors (sim -> ground truth)
+MIXTURE_IMAGE = "spectrogram/mixture"  # sensor_msgs/Image 32FC1, dB: the mixture, ears averaged (separator)
+BINAURAL_IMAGE = "spectrogram/separated_binaural"  # the same for f^B's separated binaural (separator)
+MONAURAL_IMAGE = "spectrogram/monaural"  # f^M's monaural estimate (separator)
+REFINED_IMAGE = "spectrogram/refined"  # f^R's refined estimate (separator)
+TARGET_IMAGE = "/ground_truth/spectrogram/target"  # the target's dry clip (evaluator)

@@ -11,13 +11,16 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
 from m2h_msgs.msg import (AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, Spectrogram,
                           StepScore)
 from rclpy.node import Node
+from sensor_msgs.msg import Image
 
 from m2h_ros import topics
+from m2h_ros.core.audio.display import spectrogram_image
 from m2h_ros.core.audio.scoring import score_magnitude
-from m2h_ros.core.audio.stft import DEFAULT_STFT
+from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
 from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker, write_results
 from m2h_ros.node_configs import EvaluatorConfig
 from m2h_ros.ros import convert
@@ -41,6 +44,8 @@ class EvaluatorNode(Node):
         self.pub_episode = self.create_publisher(EpisodeScore, topics.EPISODE_SCORE, STEP,
                                                  event_callbacks=publisher_events(self.get_logger(),
                                                                                   topics.EPISODE_SCORE))
+        self.pub_target_image = self.create_publisher(
+            Image, topics.TARGET_IMAGE, STEP, event_callbacks=publisher_events(self.get_logger(), topics.TARGET_IMAGE))
 
         def subscribe(kind, topic, callback, qos=STEP):
             self.create_subscription(kind, topic, callback, qos,
@@ -73,6 +78,9 @@ class EvaluatorNode(Node):
         stamp = self.get_clock().now().nanoseconds
         self.pub_step.publish(convert.step_score_msg(**values, geodesic_distance=truth_msg.geodesic_distance,
                                                      episode_id=episode_id, step=step, stamp_ns=stamp))
+        target = np.abs(stft(truth.target_monaural[0], config=DEFAULT_STFT))
+        self.pub_target_image.publish(convert.spectrogram_image_msg(
+            spectrogram_image(target), stamp_ns=convert.nanoseconds_of(truth_msg.header.stamp)))
         if step == 0:
             result = EpisodeResult(episode_id=episode_id, controller=self.controllers.get(episode_id, ""),
                                    task=info.task, sound_split=info.split, scene_id=info.scene_id,

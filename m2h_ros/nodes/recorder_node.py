@@ -10,6 +10,7 @@ from rclpy.node import Node
 
 from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
+from m2h_ros.io.derived import Derived, offered_qos as derived_qos
 from m2h_ros.node_configs import RecorderConfig
 from m2h_ros.ros.introspection import adapted_qos, offered_qos, offered_topics
 from m2h_ros.ros.params import declare_config
@@ -34,6 +35,8 @@ class RecorderNode(Node):
         self.recorded: dict[str, str] = {}  # topic -> type name
         self.counts: dict[str, int] = {}
         self.held: list[tuple[str, bytes]] | None = []  # log lines before the first data; None once written
+        # TF and playable audio for the bag, derived from what is recorded (unless the graph publishes them)
+        self.derived = Derived(namespace=self.get_namespace())
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
         self.flusher = self.create_timer(self.config.flush_period_s, self.writer.flush)  # idle stretches too
         self.discover_topics()
@@ -60,24 +63,32 @@ class RecorderNode(Node):
             self.get_logger().info(f"recording {topic} [{offer.type_name}]")
 
     def write(self, topic: str, data: bytes) -> None:
+        now = self.get_clock().now().nanoseconds
         if self.held is not None:
             if topic in LOG_TOPICS and len(self.held) < HELD_LOG_LINES:
                 self.held.append((topic, data))
                 return
-            self.write_held()
-        self.writer.write_raw(topic, self.recorded[topic], self.get_clock().now().nanoseconds, data)
+            self.write_held(now)
+        self.writer.write_raw(topic, self.recorded[topic], now, data)
         self.counts[topic] += 1
+        for extra, msgtype, extra_data in self.derived.feed(topic, self.recorded[topic], data):
+            if extra in self.recorded:  # the graph publishes it: that one is in the bag
+                continue
+            if extra not in self.counts:
+                self.writer.add_topic(extra, msgtype, offered_qos=derived_qos(extra))
+                self.counts[extra] = 0
+            self.writer.write_raw(extra, msgtype, now, extra_data)
+            self.counts[extra] += 1
 
-    def write_held(self) -> None:
+    def write_held(self, now: int) -> None:
         held, self.held = self.held, None
-        now = self.get_clock().now().nanoseconds
         for topic, data in held:
             self.writer.write_raw(topic, self.recorded[topic], now, data)
             self.counts[topic] += 1
 
     def destroy_node(self) -> None:
         if self.held:  # a run that never got going: its log lines are all it has
-            self.write_held()
+            self.write_held(self.get_clock().now().nanoseconds)
         self.writer.close()
         total = sum(self.counts.values())
         # The context may already be shut down (Ctrl-C): log without the node's rosout publisher.

@@ -17,8 +17,11 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from m2h_msgs.msg import BinauralAudio, EpisodeInfo, Spectrogram  # noqa: E402
 from rclpy.node import Node  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
 
 from m2h_ros import topics  # noqa: E402
+from m2h_ros.core.audio.display import spectrogram_image  # noqa: E402
+from m2h_ros.core.audio.stft import stft  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.device import resolve_device  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
@@ -52,6 +55,8 @@ class SeparatorNode(Node):
         self.pub_monaural = publisher(Spectrogram, topics.MONAURAL)
         self.pub_refined = publisher(Spectrogram, topics.REFINED)
         self.pub_audio = publisher(BinauralAudio, topics.SEPARATED_AUDIO)
+        self.pub_images = {topic: publisher(Image, topic) for topic in (
+            topics.MIXTURE_IMAGE, topics.BINAURAL_IMAGE, topics.MONAURAL_IMAGE, topics.REFINED_IMAGE)}
         self.create_subscription(EpisodeInfo, topics.EPISODE, self.on_episode, LATCHED,
                                  event_callbacks=subscription_events(self.get_logger(), topics.EPISODE))
         self.create_subscription(BinauralAudio, topics.AUDIO, self.on_audio, STEP,
@@ -90,6 +95,11 @@ class SeparatorNode(Node):
         waveform = out.waveform(mixture[None], config=self.stft)
         self.pub_audio.publish(convert.audio_msg(waveform, sample_rate=self.stft.sample_rate, **tag))
         self.latencies.append(time.perf_counter() - started)
+        # Pictures to look at, after everything the controller waits for.
+        pictures = {topics.MIXTURE_IMAGE: np.abs(stft(mixture, config=self.stft)), topics.BINAURAL_IMAGE: out.binaural[0],
+                    topics.MONAURAL_IMAGE: out.monaural[0], topics.REFINED_IMAGE: out.refined[0]}
+        for topic, magnitude in pictures.items():
+            self.pub_images[topic].publish(convert.spectrogram_image_msg(spectrogram_image(magnitude), stamp_ns=stamp))
 
     def destroy_node(self) -> None:
         if self.latencies:

@@ -16,22 +16,26 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 from m2h_msgs.msg import AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, StepScore
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
+from visualization_msgs.msg import MarkerArray
 
 from m2h_ros import sim_world, topics
 from m2h_ros.core.results import HELD
+from m2h_ros.core.world import frames
 from m2h_ros.core.world.env import N_ACTIONS
 from m2h_ros.core.world.player import EpisodePlayer, PlayerStep
 from m2h_ros.errors import PipelineError
 from m2h_ros.node_configs import SimConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.graph import missing_consumers
+from m2h_ros.ros.introspection import optional_message_class
 from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
+from m2h_ros.ros.qos import LATCHED, LATEST, STEP, TF, publisher_events, subscription_events
 from m2h_ros.ros.spin import RunFinished, run_node
 
 TICK_S = 0.05  # how often the node checks start-up and timeouts (answers are handled as they come)
@@ -60,6 +64,17 @@ class SimNode(Node):
         self.pub_odom = publisher(Odometry, topics.ODOM)
         self.pub_pose = publisher(AgentPose, topics.AGENT_POSE)
         self.pub_truth = publisher(GroundTruth, topics.GROUND_TRUTH)
+        self.pub_map = publisher(OccupancyGrid, topics.MAP, LATEST)
+        self.pub_path = publisher(MarkerArray, topics.PATH)
+        self.pub_sources = publisher(MarkerArray, topics.SOURCES)
+        # TF where tf2_msgs is installed; elsewhere the recorder writes the same tree into the bag.
+        self.tf_message = optional_message_class("tf2_msgs/msg/TFMessage")
+        if self.tf_message is not None:
+            self.pub_tf, self.pub_tf_static = publisher(self.tf_message, "/tf", TF), \
+                publisher(self.tf_message, "/tf_static", LATEST)
+        self.maps: dict[str, frames.OccupancyGrid] = {}  # scene fingerprint -> its grid
+        self.path: list[tuple[float, float]] = []  # the robot's positions this episode
+        self.last_pose: tuple[np.ndarray, int] | None = None  # pose and stamp (ns) of the last observation
         if cfg.camera:
             self.pub_rgb, self.pub_depth = publisher(Image, topics.RGB), publisher(Image, topics.DEPTH)
             self.pub_info = publisher(CameraInfo, topics.CAMERA_INFO)
@@ -224,10 +239,17 @@ class SimNode(Node):
         tag = dict(episode_id=episode.episode_id, step=step, stamp_ns=stamp)
         if episode_start:
             self.pub_episode.publish(convert.episode_info_msg(episode, stamp_ns=stamp))
+            self.publish_scene(stamp)
         # The mixture first: the separator (the longest stage) starts while the rest goes out.
         self.pub_audio.publish(convert.audio_msg(obs["audio"][0], sample_rate=self.sample_rate, **tag))
         pose = obs["pose"][0]
-        self.pub_odom.publish(convert.odometry_msg(pose, height=self.ear_height, stamp_ns=stamp))
+        previous = None if episode_start else self.last_pose
+        twist = frames.twist(previous[0], pose, (stamp - previous[1]) / 1e9) if previous else (0.0, 0.0, 0.0)
+        self.last_pose = (pose, stamp)
+        self.pub_odom.publish(convert.odometry_msg(pose, twist=twist, stamp_ns=stamp))
+        if self.tf_message is not None:
+            self.pub_tf.publish(self.tf_message(transforms=convert.transform_msgs(
+                [frames.base_transform(pose)], stamp_ns=stamp)))
         self.pub_pose.publish(convert.agent_pose_msg(pose, node=int(obs["node"][0]), heading=int(obs["heading"][0]),
                                                      last_action=last_action, height=self.ear_height, **tag))
         if self.config.camera:
@@ -236,10 +258,28 @@ class SimNode(Node):
             self.pub_info.publish(convert.camera_info_msg(self.camera_config, stamp_ns=stamp))
         self.pub_truth.publish(convert.ground_truth_msg(info, 0, sample_rate=self.sample_rate,
                                                          last_step=self.current.done, **tag))
+        self.path.append((float(pose[0]), float(pose[1])))
+        self.pub_path.publish(convert.path_markers(np.array(self.path), height=self.ear_height, stamp_ns=stamp))
         self.published_at = time.monotonic()
         if not self.steps:
             self.first_published_at = self.published_at
         self.steps += 1
+
+    def publish_scene(self, stamp: int) -> None:
+        """At an episode's start: its floor plan, where its sources are (ground truth) and, once, the
+        static frames."""
+        scene, episode = self.player.scene, self.player.episode
+        grid = self.maps.get(scene.fingerprint())
+        if grid is None:
+            grid = self.maps[scene.fingerprint()] = frames.occupancy_grid(scene)
+        self.pub_map.publish(convert.occupancy_grid_msg(grid, stamp_ns=stamp))
+        self.pub_sources.publish(convert.source_markers(
+            scene.grid.positions[list(episode.source_nodes)], episode.source_categories,
+            height=self.ear_height, stamp_ns=stamp))
+        self.path = []
+        if self.tf_message is not None and self.position == 0:
+            static = frames.static_transforms(head_height=self.ear_height, eye_height=self.camera_config.eye_height)
+            self.pub_tf_static.publish(self.tf_message(transforms=convert.transform_msgs(static, stamp_ns=stamp)))
 
     def destroy_node(self) -> None:
         self.player.close()

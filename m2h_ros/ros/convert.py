@@ -14,17 +14,22 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from m2h_msgs.msg import (AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth,
                           MotionCommand, Spectrogram, StepScore)
-from nav_msgs.msg import Odometry
+from geometry_msgs.msg import Point, Pose, TransformStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
 
 from m2h_ros.agents.base import EpisodeStart
 from m2h_ros.core.audio.scoring import StepTruth
 from m2h_ros.core.audio.stft import StftConfig
 from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.core.world.episodes import Episode
+from m2h_ros.core.world.frames import BASE, CAMERA, HEAD, MAP, ODOM, quaternion_yaw, yaw_rotation
+from m2h_ros.core.world.frames import OccupancyGrid as Grid
 from m2h_ros.errors import AudioError, PipelineError
 
-MAP_FRAME, BASE_FRAME, HEAD_FRAME, CAMERA_FRAME = "map", "base_link", "head", "camera"
+MAP_FRAME, ODOM_FRAME, BASE_FRAME, HEAD_FRAME, CAMERA_FRAME = MAP, ODOM, BASE, HEAD, CAMERA
 
 
 def stamp_of(nanoseconds: int) -> Time:
@@ -143,33 +148,116 @@ def camera_info_msg(config: CameraConfig, *, stamp_ns: int) -> CameraInfo:
     return msg
 
 
-def odometry_msg(pose: np.ndarray, *, height: float, stamp_ns: int) -> Odometry:
-    """(x, y, yaw) -> Odometry in the map frame (the simulator's odometry is exact)."""
+def _pose(pose: np.ndarray, height: float) -> Pose:
     x, y, yaw = (float(v) for v in pose)
+    msg = Pose()
+    msg.position.x, msg.position.y, msg.position.z = x, y, float(height)
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = yaw_rotation(yaw)
+    return msg
+
+
+def odometry_msg(pose: np.ndarray, *, twist=(0.0, 0.0, 0.0), stamp_ns: int) -> Odometry:
+    """(x, y, yaw) of base_link on the floor, and its twist (forward, leftward m/s, turn rad/s, in
+    base_link) -> Odometry in the odom frame (REP 105)."""
     msg = Odometry(child_frame_id=BASE_FRAME)
-    msg.header.stamp, msg.header.frame_id = stamp_of(stamp_ns), MAP_FRAME
-    msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = x, y, float(height)
-    msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    msg.header.stamp, msg.header.frame_id = stamp_of(stamp_ns), ODOM_FRAME
+    msg.pose.pose = _pose(pose, 0.0)
+    msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.angular.z = (float(v) for v in twist)
     return msg
 
 
 def pose_from_odometry(msg: Odometry) -> np.ndarray:
     """Odometry -> (x, y, yaw) float32, yaw from the quaternion about +z."""
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
-    return np.array([p.x, p.y, yaw % (2 * math.pi)], np.float32)
+    return np.array([p.x, p.y, quaternion_yaw(q.x, q.y, q.z, q.w) % (2 * math.pi)], np.float32)
 
 
 def agent_pose_msg(pose: np.ndarray, *, node: int, heading: int, last_action: int, height: float,
                    episode_id: str, step: int, stamp_ns: int) -> AgentPose:
     msg = _tag(AgentPose(), episode_id, step, stamp_ns, MAP_FRAME)
-    msg.pose = odometry_msg(pose, height=height, stamp_ns=stamp_ns).pose.pose
+    msg.pose = _pose(pose, height)
     msg.node, msg.heading, msg.last_action = int(node), int(heading), int(last_action)
     return msg
 
 
 def position_of(msg: AgentPose) -> np.ndarray:
     return np.array([msg.pose.position.x, msg.pose.position.y], np.float64)
+
+
+# --- what rviz and Foxglove show: TF, the map, markers, spectrogram pictures --------------------
+
+def transform_msgs(transforms, *, stamp_ns: int) -> list[TransformStamped]:
+    """core.world.frames Transforms -> TransformStamped (for a tf2_msgs/TFMessage)."""
+    out = []
+    for tr in transforms:
+        msg = TransformStamped(child_frame_id=tr.child)
+        msg.header.stamp, msg.header.frame_id = stamp_of(stamp_ns), tr.parent
+        t, r = msg.transform.translation, msg.transform.rotation
+        t.x, t.y, t.z = (float(v) for v in tr.translation)
+        r.x, r.y, r.z, r.w = (float(v) for v in tr.rotation)
+        out.append(msg)
+    return out
+
+
+def occupancy_grid_msg(grid: Grid, *, stamp_ns: int) -> OccupancyGrid:
+    rows, cols = grid.cells.shape
+    msg = OccupancyGrid()
+    msg.header.stamp, msg.header.frame_id = stamp_of(stamp_ns), MAP_FRAME
+    msg.info.map_load_time = msg.header.stamp
+    msg.info.resolution, msg.info.width, msg.info.height = float(grid.resolution), cols, rows
+    msg.info.origin.position.x, msg.info.origin.position.y = (float(v) for v in grid.origin)
+    msg.info.origin.orientation.w = 1.0
+    msg.data = array.array("b", np.ascontiguousarray(grid.cells, np.int8).tobytes())
+    return msg
+
+
+def _marker(kind: int, *, namespace: str, marker_id: int, stamp_ns: int, rgba, scale) -> Marker:
+    msg = Marker(type=kind, action=Marker.ADD, ns=namespace, id=marker_id)
+    msg.header.stamp, msg.header.frame_id = stamp_of(stamp_ns), MAP_FRAME
+    msg.pose.orientation.w = 1.0
+    msg.scale.x, msg.scale.y, msg.scale.z = (float(v) for v in scale)
+    msg.color = ColorRGBA(r=float(rgba[0]), g=float(rgba[1]), b=float(rgba[2]), a=float(rgba[3]))
+    return msg
+
+
+PATH_COLOUR, TARGET_COLOUR, DISTRACTOR_COLOUR = (0.1, 0.4, 0.9, 1.0), (0.1, 0.7, 0.2, 0.9), (0.85, 0.2, 0.15, 0.9)
+
+
+def path_markers(positions: np.ndarray, *, height: float, stamp_ns: int) -> MarkerArray:
+    """The robot's positions so far this episode, (K, 2) metres: a line through them and a dot at each."""
+    line = _marker(Marker.LINE_STRIP, namespace="path", marker_id=0, stamp_ns=stamp_ns, rgba=PATH_COLOUR,
+                   scale=(0.05, 0.0, 0.0))
+    dots = _marker(Marker.SPHERE_LIST, namespace="path", marker_id=1, stamp_ns=stamp_ns, rgba=PATH_COLOUR,
+                   scale=(0.15, 0.15, 0.15))
+    points = [Point(x=float(x), y=float(y), z=float(height)) for x, y in np.asarray(positions, float).reshape(-1, 2)]
+    line.points = dots.points = points
+    return MarkerArray(markers=[line, dots])
+
+
+def source_markers(positions: np.ndarray, categories, *, height: float, stamp_ns: int) -> MarkerArray:
+    """Where the sources are, target first, (K, 2) metres: a sphere each (target green, distractors red)
+    and its category above it; the first marker deletes the previous episode's."""
+    clear = Marker(action=Marker.DELETEALL)
+    clear.header.stamp, clear.header.frame_id = stamp_of(stamp_ns), MAP_FRAME
+    markers = [clear]
+    for k, ((x, y), category) in enumerate(zip(np.asarray(positions, float).reshape(-1, 2), categories, strict=True)):
+        rgba = TARGET_COLOUR if k == 0 else DISTRACTOR_COLOUR
+        ball = _marker(Marker.SPHERE, namespace="sources", marker_id=k, stamp_ns=stamp_ns, rgba=rgba,
+                       scale=(0.4, 0.4, 0.4))
+        label = _marker(Marker.TEXT_VIEW_FACING, namespace="source_labels", marker_id=k, stamp_ns=stamp_ns,
+                        rgba=(1.0, 1.0, 1.0, 1.0), scale=(0.0, 0.0, 0.3))
+        ball.pose.position.x, ball.pose.position.y, ball.pose.position.z = float(x), float(y), float(height)
+        label.pose.position.x, label.pose.position.y, label.pose.position.z = float(x), float(y), float(height) + 0.5
+        label.text = f"{'target' if k == 0 else 'distractor'}: {category}"
+        markers += [ball, label]
+    return MarkerArray(markers=markers)
+
+
+def spectrogram_image_msg(picture: np.ndarray, *, stamp_ns: int) -> Image:
+    """A core.audio.display.spectrogram_image (rows x frames, dB) -> a 32FC1 Image in the head frame."""
+    msg = depth_msg(picture, stamp_ns=stamp_ns)
+    msg.header.frame_id = HEAD_FRAME
+    return msg
 
 
 # --- episodes, ground truth, commands, scores ---------------------------------------------------

@@ -45,6 +45,15 @@ def offered_topics(node: Node, *, known: Container[str], wanted: Collection[str]
             yield OfferedTopic(topic, types[0], problem=f"type {types[0]} is not importable")
 
 
+def optional_message_class(type_name: str) -> type | None:
+    """The class where its package is installed, else None (the PyPI wheels lack tf2_msgs and
+    foxglove_msgs; a ROS 2 install may have them)."""
+    try:
+        return message_class(type_name)
+    except (ImportError, AttributeError):
+        return None
+
+
 def adapted_qos(node: Node, topic: str) -> QoSProfile:
     """Like rosbag2: reliable / transient-local only when every current publisher offers it."""
     infos = node.get_publishers_info_by_topic(topic)

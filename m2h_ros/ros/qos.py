@@ -19,6 +19,13 @@ EPISODE_HISTORY = 8
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=EPISODE_HISTORY,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# What describes the whole episode (its map, the static frames): the last one, kept for late joiners
+# (rviz's and Foxglove's "latched" / transient-local subscriptions).
+LATEST = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# tf2's own profile for /tf (tf2_ros.TransformBroadcaster).
+TF = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.VOLATILE)
 # The recorder must accept any publisher: best-effort + volatile is compatible with every offer.
 RECORD = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)

@@ -366,3 +366,96 @@ def test_sigterm_to_run_pipeline_stops_every_node(small_library, small_data_dir,
             os.killpg(run.pid, signal.SIGKILL)
         for pid in marked_nodes():
             os.kill(pid, signal.SIGKILL)
+
+
+def test_the_bag_shows_the_run_in_foxglove_and_rviz(tiny_run):
+    """Read with the independent reader (`mcap` + `mcap-ros2-support`, as Foxglove's tools decode ROS 2
+    bags): every message decodes; the TF tree joins map to the camera; the map, markers and spectrogram
+    pictures are well formed; the RawAudio tracks are pcm-s16 holding the recorded audio; the timeline
+    starts with the run, not with the nodes' start-up log lines."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from m2h_ros.io.derived import PCM_GAIN
+
+    out, _ = tiny_run
+    decoded: dict[str, list] = {}
+    with next((out / "bag").glob("*.mcap")).open("rb") as stream:
+        reader = make_reader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        for schema, channel, message, msg in reader.iter_decoded_messages():
+            decoded.setdefault(channel.topic, []).append((message.log_time, schema.name, msg))
+    types = {topic: entries[0][1] for topic, entries in decoded.items()}
+    expected = {"/tf": "tf2_msgs/msg/TFMessage", "/tf_static": "tf2_msgs/msg/TFMessage",
+                "/map": "nav_msgs/msg/OccupancyGrid", "/path": "visualization_msgs/msg/MarkerArray",
+                topics.SOURCES: "visualization_msgs/msg/MarkerArray", topics.TARGET_IMAGE: "sensor_msgs/msg/Image",
+                "/audio/pcm": "foxglove_msgs/msg/RawAudio", "/separator/audio/pcm": "foxglove_msgs/msg/RawAudio",
+                "/ground_truth/target/pcm": "foxglove_msgs/msg/RawAudio",
+                **{"/" + t: "sensor_msgs/msg/Image" for t in (topics.MIXTURE_IMAGE, topics.BINAURAL_IMAGE,
+                                                               topics.MONAURAL_IMAGE, topics.REFINED_IMAGE)}}
+    assert {t: types.get(t) for t in expected} == expected
+
+    # TF: map -> odom -> base_link -> head -> camera, static parts once, odom -> base_link per step.
+    (static,) = [m for _, _, m in decoded["/tf_static"]]
+    parents = {t.child_frame_id: t.header.frame_id for t in static.transforms}
+    for _, _, m in decoded["/tf"]:
+        parents.update({t.child_frame_id: t.header.frame_id for t in m.transforms})
+    chain, frame = ["camera"], "camera"
+    while frame in parents:
+        frame = parents[frame]
+        chain.append(frame)
+    assert chain == ["camera", "head", "base_link", "odom", "map"]
+    head = next(t for t in static.transforms if t.child_frame_id == "head").transform.translation
+    assert head.z == pytest.approx(1.5)
+    odoms = [m for _, _, m in decoded["/odom"]]
+    assert len(decoded["/tf"]) == len(odoms)
+    for (_, _, tf), odom in zip(decoded["/tf"], odoms, strict=True):
+        (t,) = tf.transforms
+        assert (t.header.stamp.sec, t.header.stamp.nanosec) == (odom.header.stamp.sec, odom.header.stamp.nanosec)
+        assert (t.transform.translation.x, t.transform.translation.y) == (odom.pose.pose.position.x,
+                                                                          odom.pose.pose.position.y)
+    # Odometry's twist is the motion to this observation: over the time between the two stamps it covers
+    # the step (1 m forward or a quarter turn); the first observation of an episode stands still.
+    poses = [m for _, _, m in decoded["/agent_pose"]]
+    moved = 0
+    for previous, (pose, odom) in zip(poses, zip(poses[1:], odoms[1:], strict=True)):
+        if pose.episode_id != previous.episode_id:
+            assert odom.twist.twist.linear.x == odom.twist.twist.angular.z == 0.0
+            continue
+        seconds = (pose.header.stamp.sec - previous.header.stamp.sec) + (
+            pose.header.stamp.nanosec - previous.header.stamp.nanosec) / 1e9
+        distance = np.hypot(pose.pose.position.x - previous.pose.position.x, pose.pose.position.y - previous.pose.position.y)
+        assert odom.twist.twist.linear.x * seconds == pytest.approx(distance, abs=1e-6)
+        moved += distance > 0 or odom.twist.twist.angular.z != 0
+    assert moved > 0
+
+    grid = decoded["/map"][0][2]
+    cells = np.array(grid.data, np.int8)
+    assert grid.info.width * grid.info.height == cells.size and {0, 100} <= set(np.unique(cells)) <= {-1, 0, 100}
+    sources = decoded[topics.SOURCES][0][2].markers
+    assert [m.action for m in sources][:1] == [3] and sum(m.type == 2 for m in sources) == 2  # DELETEALL; 2 spheres
+    assert len(decoded["/path"][-1][2].markers[0].points) >= 1
+    for topic in expected:
+        if expected[topic] == "sensor_msgs/msg/Image":
+            image = decoded[topic][0][2]
+            values = np.frombuffer(bytes(image.data), "<f4")
+            assert (image.encoding, image.height, image.width) == ("32FC1", 128, 32) and np.all(np.isfinite(values))
+
+    # RawAudio: pcm-s16 of exactly the recorded samples (to 16-bit resolution where not clipped).
+    for pcm_topic, source, field, channels in (("/audio/pcm", "/audio", "samples", 2),
+                                               ("/separator/audio/pcm", "/separator/audio", "samples", 1),
+                                               ("/ground_truth/target/pcm", topics.GROUND_TRUTH, "target_monaural", 1)):
+        pcm = [m for _, _, m in decoded[pcm_topic]]
+        assert len(pcm) == len(decoded[source])
+        for audio, (_, _, original) in zip(pcm, decoded[source], strict=True):
+            assert (audio.format, audio.sample_rate, audio.number_of_channels) == ("pcm-s16", 16000, channels)
+            assert (audio.timestamp.sec, audio.timestamp.nanosec) == (original.header.stamp.sec,
+                                                                       original.header.stamp.nanosec)
+            samples = np.asarray(getattr(original, field), np.float32).reshape(channels, -1)
+            heard = np.frombuffer(bytes(audio.data), "<i2").reshape(-1, channels).T / (32767 * PCM_GAIN)
+            clipped = np.abs(samples) * PCM_GAIN >= 1
+            assert heard.shape == samples.shape and not clipped.all()
+            np.testing.assert_allclose(heard[~clipped], samples[~clipped], atol=1 / (32767 * PCM_GAIN))
+
+    first_data = min(t for topic, entries in decoded.items() if topic != "/rosout" for t, _, _ in entries)
+    assert min(t for t, _, _ in decoded["/rosout"]) >= first_data
+    assert first_data >= decoded["/episode"][0][0] - 0.5e9
