@@ -15,7 +15,7 @@ from m2h_msgs.msg import BinauralAudio
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
-from m2h_ros.core.audio.pcm import pcm_s16
+from m2h_ros.core.audio.pcm import pcm_int16
 from m2h_ros.errors import LiveViewError
 from m2h_ros.io.msg_defs import typestore
 from m2h_ros.node_configs import LiveViewConfig
@@ -78,7 +78,7 @@ class LiveViewNode(Node):
                                           "channels; no pcm track for this frame", throttle_duration_sec=10.0)
                 return
             pcm.log(RawAudio(timestamp=Timestamp(msg.header.stamp.sec, msg.header.stamp.nanosec),
-                             data=pcm_s16(samples.reshape(msg.channels, -1), gain=self.config.audio_gain), format="pcm-s16",
+                             data=pcm_int16(samples.reshape(msg.channels, -1), gain=self.config.audio_gain), format="pcm-s16",
                              sample_rate=msg.sample_rate, number_of_channels=msg.channels), log_time=now)
 
     def destroy_node(self) -> None:

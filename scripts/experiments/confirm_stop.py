@@ -2,7 +2,7 @@
 """Choose ``move2hear_navigation:confirm``'s threshold on the validation split (far-target).
 
     python scripts/experiments/confirm_stop.py [--thresholds 0,0.3,0.5,0.7] [--sound-split heard,unheard]
-        [--count 200] [--workers 2] [--out docs/results/experiments/confirm_stop]
+        [--count 200] [--workers 2] [--out DIR]
 
 pi^N + Stop takes its Stop only where the supervised Stop predictor of Gan et al.'s sound locator gives
 the robot at least the threshold's probability of standing on the target's node; elsewhere Stop's

@@ -2,7 +2,7 @@
 """Choose the Gan et al. baseline's Stop rule on the validation split (far-target).
 
     python scripts/experiments/gan_stop_rule.py [--thresholds 0.5,0.7,0.9] [--patience 1,2]
-        [--sound-split unheard] [--count 48] [--out docs/results/experiments/gan_stop_rule]
+        [--sound-split unheard] [--count 48] [--out DIR]
 
 The controller stops when the sound locator's Stop probability has exceeded the threshold on
 ``patience`` consecutive steps (``m2h_ros/agents/gan.py``). Each (threshold, patience) plays the

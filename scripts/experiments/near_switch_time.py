@@ -2,7 +2,7 @@
 """Near-target Move2Hear that first walks with the approach policy, then improves the estimate with pi^Q.
 
     python scripts/experiments/near_switch_time.py [--switch-steps 0,5,10,20] [--scene-split val]
-        [--count 200] [--workers 2] [--policy-checkpoint FOLDER] [--out docs/results/experiments/near_switch_time]
+        [--count 200] [--workers 2] [--policy-checkpoint FOLDER] [--out DIR]
 
 ``move2hear``'s ``near_switch_step`` T: near-target, the folder's approach policy (``policy_approach.pt``,
 three actions, trained on the geodesic distance gained) acts until step T, then pi^Q with a fresh GRU state,

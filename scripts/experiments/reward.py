@@ -3,7 +3,7 @@
 
     python scripts/experiments/reward.py --runs runs/reward/nmse,runs/reward/snr,runs/reward/si_sdr
         [--sound-split heard,unheard] [--count 100] [--chunk 50] [--workers 2] [--address ADDR]
-        [--seed 0] [--out docs/results/reward]
+        [--seed 0] [--out docs/results/experiments/reward/stage2]
 
 Train the runs first, one per reward, with the same seed and budget (docs/design/experiments.md):
 
@@ -43,7 +43,7 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2, help="local Ray CPUs (ignored with --address)")
     parser.add_argument("--address", help="an existing Ray cluster")
     parser.add_argument("--seed", type=int, default=0, help="seed of pi^Q's sampled actions")
-    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "reward")
+    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "experiments" / "reward")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
     command = shlex.join(["python", repo_relative(__file__), *sys.argv[1:]])

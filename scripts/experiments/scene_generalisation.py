@@ -2,7 +2,7 @@
 """Diagnostic: how far-target walkers approach the target in the scenes they trained in and in unseen ones.
 
     python scripts/experiments/scene_generalisation.py [--controllers move2hear,gan_et_al@CKPT,...] [--count 100]
-        [--sound-split heard] [--seed 7] [--step 80] [--threads 2] [--out docs/results/scene_generalisation]
+        [--sound-split heard] [--seed 7] [--step 80] [--threads 2] [--out DIR]
 
 Plays each controller (``SPEC`` or ``SPEC@CHECKPOINT``, as ``scripts/evaluate.py --policy-checkpoint``) on far-target
 episodes of the train scenes drawn with ``--seed`` (the policies trained on seed 0's: those episodes, start, target and

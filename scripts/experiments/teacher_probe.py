@@ -2,7 +2,7 @@
 """Diagnostic: how predictable the approach teacher's action is from the ILD of what the policy hears.
 
     python scripts/experiments/teacher_probe.py [--task near_target] [--rollouts 60] [--seed 5]
-        [--out docs/results/teacher_probe_near_target]
+        [--out DIR]
 
 Rollouts of an untrained policy on training episodes (16 slots x 20 steps each, camera off), then a
 linear and a one-hidden-layer probe from the ILD spectrum of the separated binaural estimate to the

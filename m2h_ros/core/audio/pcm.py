@@ -3,7 +3,7 @@
 import numpy as np
 
 
-def pcm_s16(samples: np.ndarray, *, gain: float) -> bytes:
+def pcm_int16(samples: np.ndarray, *, gain: float) -> bytes:
     """``(channels, n)`` (or ``(n,)``) float samples times ``gain``, clipped to [-1, 1], as interleaved
     little-endian int16 frames.
 
