@@ -24,6 +24,7 @@ from m2h_ros.io.bag import read_messages
 STREAM_TITLES = ("mixture (binaural, as heard)", "separated estimate")
 PEAK = 0.9  # each stream is scaled so its loudest sample sits here: the two are heard at a like level
 MAP_TOPIC, SOURCES_TOPIC = "/map", "/ground_truth/sources"  # where a run records its scene
+ADD, TEXT_VIEW_FACING = 0, 9  # visualization_msgs/Marker's action and type constants
 
 
 def absolute(name: str) -> str:
@@ -86,7 +87,9 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
     for item in read_messages(bag, topics=wanted):
         msg, topic = item.message, item.topic
         if topic in (MAP_TOPIC, SOURCES_TOPIC, absolute(topics.RGB)):
-            stamped.append((topic, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg))
+            header = msg.markers[0].header if topic == SOURCES_TOPIC and msg.markers else getattr(msg, "header", None)
+            if header is not None:  # a MarkerArray's stamp is its markers'
+                stamped.append((topic, header.stamp.sec * 10**9 + header.stamp.nanosec, msg))
             continue
         if getattr(msg, "episode_id", None) != episode:
             continue
@@ -118,9 +121,11 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
             x0, y0 = info.origin.position.x, info.origin.position.y
             extent = (x0, x0 + info.width * info.resolution, y0, y0 + info.height * info.resolution)
             media.grid = (np.asarray(msg.data, np.int8).reshape(info.height, info.width), extent)
-        elif topic == SOURCES_TOPIC and stamp <= first:
-            media.sources = [(m.pose.position.x, m.pose.position.y, m.text or m.ns) for m in msg.markers
-                             if m.action == 0 and m.type != 9]  # 9: TEXT_VIEW_FACING, the labels
+        elif topic == SOURCES_TOPIC and stamp <= first:  # a ball per source (id 0: the target), a label each
+            labels = {m.id: m.text for m in msg.markers if m.action == ADD and m.type == TEXT_VIEW_FACING}
+            media.sources = [(m.pose.position.x, m.pose.position.y, labels.get(m.id, ""))
+                             for m in sorted(msg.markers, key=lambda m: m.id)
+                             if m.action == ADD and m.type != TEXT_VIEW_FACING]
     return media
 
 

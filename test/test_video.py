@@ -15,9 +15,9 @@ from matplotlib.image import imread
 from scipy.signal import correlate
 
 from m2h_ros import topics
-from m2h_ros.io.bag import read_messages
+from m2h_ros.io.bag import BagWriter, read_messages
 from m2h_ros.io.synthetic import SyntheticRun, write_synthetic_run
-from m2h_ros.video import STREAM_TITLES
+from m2h_ros.video import STREAM_TITLES, read_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 6  # observations of the episode: max_steps + 1
@@ -27,12 +27,41 @@ FPS = 4
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
     run = tmp_path_factory.mktemp("run")
-    write_synthetic_run(run / "bag", SyntheticRun(episodes=2, max_steps=STEPS - 1))
+    with BagWriter(run / "bag") as writer:
+        write_scene(writer, stamp_ns=10**18)  # before the episodes: the plan they play in
+        write_synthetic_run(run / "bag", SyntheticRun(episodes=2, max_steps=STEPS - 1), writer=writer)
     result = subprocess.run([sys.executable, str(ROOT / "scripts" / "make_video.py"), str(run), "--episode", "1",
                              "--size", "320x180", "--fps", str(FPS), "--audio-kbps", "128",
                              "--still", str(run / "still.png"), "--still-step", "2"], capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr
     return run, run / "videos" / "test_near_target_heard_000001.mp4"
+
+
+GRID = np.zeros((8, 10), np.int8)
+GRID[0, :] = 100  # a wall along the bottom row
+SOURCES = [((2.0, 3.0), "target: speech"), ((6.5, 1.5), "distractor: music")]
+
+
+def write_scene(writer: BagWriter, *, stamp_ns: int) -> None:
+    """A floor plan and source markers as the simulator publishes them (a label above each ball)."""
+    from nav_msgs.msg import OccupancyGrid
+    from rclpy.serialization import serialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    grid = OccupancyGrid()
+    grid.header.stamp.sec, grid.header.frame_id = stamp_ns // 10**9, "map"
+    grid.info.resolution, grid.info.width, grid.info.height = 0.5, 10, 8
+    grid.info.origin.position.x, grid.info.origin.position.y = -1.0, -0.5
+    grid.data = GRID.ravel().tolist()
+    writer.write_raw("/map", "nav_msgs/msg/OccupancyGrid", stamp_ns, serialize_message(grid))
+    markers = [Marker(header=grid.header, action=Marker.DELETEALL)]  # the previous episode's
+    for k, ((x, y), label) in enumerate(SOURCES):
+        for kind, text in ((Marker.SPHERE, ""), (Marker.TEXT_VIEW_FACING, label)):
+            marker = Marker(header=grid.header, ns="sources", id=k, type=kind, action=Marker.ADD, text=text)
+            marker.pose.position.x, marker.pose.position.y = x, y
+            markers.append(marker)
+    writer.write_raw("/ground_truth/sources", "visualization_msgs/msg/MarkerArray", stamp_ns,
+                     serialize_message(MarkerArray(markers=markers)))
 
 
 def bag_audio(bag: Path, topic: str, episode_id: str) -> np.ndarray:
@@ -83,6 +112,15 @@ def test_both_audio_streams_carry_the_bags_audio(video):
     for ear in range(2):
         assert best_correlation(heard[ear], mixture[ear]) > 0.98, ear
     assert best_correlation(separated[0], estimate[0]) > 0.98
+
+
+def test_the_map_and_the_sources_come_from_the_bag(video):
+    run, _ = video
+    media = read_episode(run / "bag", 1)
+    occupancy, extent = media.grid
+    assert np.array_equal(occupancy, GRID) and extent == (-1.0, 4.0, -0.5, 3.5)
+    assert media.sources == [(x, y, label) for (x, y), label in SOURCES]
+    assert sorted(media.pose) == list(range(STEPS))
 
 
 def test_the_still_is_its_steps_picture(video):
