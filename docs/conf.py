@@ -20,8 +20,8 @@ version = release
 extensions = ["myst_parser", "m2h_docs"]
 source_suffix = {".md": "markdown"}
 root_doc = "index"
-# The result folders hold generated tables and figures, linked to by path, not pages of the site.
-exclude_patterns = ["_build", "_ext", "results/**", "videos/**"]
+# docs/results/ is part of the site: each folder's README and the tables the scripts wrote.
+exclude_patterns = ["_build", "_ext", "videos/**"]
 myst_enable_extensions = ["colon_fence", "dollarmath", "deflist"]
 myst_heading_anchors = 3
 # Links to repository files (scripts, params, result folders) are checked by m2h_docs, which

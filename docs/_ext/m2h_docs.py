@@ -8,6 +8,8 @@ drift from it, and a role that checks repository paths.
 * ``{m2h-commands} scripts/*.py``: each matching script with the first paragraph of its docstring.
 * ``{repo}`path``: a repository path in code style; a path that does not exist is a build warning
   (an error under ``-W``).
+* Generated tables under ``results/`` that open without a heading (``paired.md``) get their path as
+  the page title, so the navigation can list them.
 """
 
 from __future__ import annotations
@@ -133,7 +135,14 @@ def repo_role(name, rawtext, text, lineno, inliner, options=None, content=None):
     return [nodes.literal(rawtext, path)], []
 
 
+def title_results_tables(app, docname: str, source: list[str]) -> None:
+    """A results table written by a script without a heading gets its path as its title."""
+    if docname.startswith("results/") and not source[0].lstrip().startswith("#"):
+        source[0] = f"# {docname.removeprefix('results/')}\n\n" + source[0]
+
+
 def setup(app):
+    app.connect("source-read", title_results_tables)
     app.add_directive("m2h-config", ConfigTable)
     app.add_directive("m2h-topics", TopicTable)
     app.add_directive("m2h-messages", MessageDefinitions)
