@@ -16,7 +16,7 @@ import numpy as np
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from m2h_ros import topics
-from m2h_ros.core.audio.pcm import pcm_s16
+from m2h_ros.core.audio.pcm import pcm_int16
 from m2h_ros.core.world.frames import Transform, base_transform, quaternion_yaw, static_transforms
 from m2h_ros.io.msg_defs import RAW_AUDIO, TF_MESSAGE, typestore
 
@@ -85,7 +85,7 @@ class Derived:
             if channels < 1 or samples.size % channels:
                 return []
             audio = self._types[RAW_AUDIO](timestamp=msg.header.stamp,
-                                           data=np.frombuffer(pcm_s16(samples.reshape(channels, -1), gain=PCM_GAIN), np.uint8),
+                                           data=np.frombuffer(pcm_int16(samples.reshape(channels, -1), gain=PCM_GAIN), np.uint8),
                                            format="pcm-s16", sample_rate=int(msg.sample_rate),
                                            number_of_channels=channels)
             return [(pcm_topic(topic), RAW_AUDIO, bytes(self.store.serialize_cdr(audio, RAW_AUDIO)))]
