@@ -50,9 +50,10 @@ def separator():
 
 @pytest.fixture(scope="session")
 def small_episodes(folder_library):
-    """``small_episodes(count=, max_steps=, task=, seed=)``: episodes on the small test scenes."""
-    def make(*, count: int, max_steps: int, task: str = "near_target", seed: int = 0):
+    """``small_episodes(count=, max_steps=, task=, seed=, library=)``: episodes on the small test scenes,
+    of the synthetic folder library unless another is given."""
+    def make(*, count: int, max_steps: int, task: str = "near_target", seed: int = 0, library=folder_library):
         extra = {"near_radius": 2.0} if task == "near_target" else {"far_min_distance": 3.0}
         return generate_episodes(EpisodeConfig(task=task, count=count, max_steps=max_steps, seed=seed,
-                                               **SMALL, **extra), folder_library)
+                                               **SMALL, **extra), library)
     return make
