@@ -4,6 +4,8 @@ drift from it, and a role that checks repository paths.
 * ``{m2h-config} m2h_ros.node_configs.SimConfig``: a node's parameters (name, type, default,
   description, range or choices) from its frozen config dataclass.
 * ``{m2h-topics}``: the pipeline's topics and their message types from ``m2h_ros/topics.py``.
+* ``{m2h-qos}``: every QoS profile of ``m2h_ros/ros/qos.py`` and the comment that explains it (read
+  from the source, so the docs build needs no ROS).
 * ``{m2h-messages}``: every ``msg_defs/msg/*.msg``, whole.
 * ``{m2h-commands} scripts/*.py``: each matching script with the first paragraph of its docstring.
 * ``{repo}`path``: a repository path in code style; a path that does not exist is a build warning
@@ -92,6 +94,44 @@ class TopicTable(Directive):
         return [_table(["topic", "constant", "type and publisher"], rows, [25, 18, 57])]
 
 
+def _policy(node: ast.expr, constants: dict[str, object]) -> str:
+    """``ReliabilityPolicy.RELIABLE`` -> "reliable"; a name -> its constant's value."""
+    if isinstance(node, ast.Attribute):
+        return node.attr.lower().replace("_", " ")
+    if isinstance(node, ast.Name):
+        return str(constants[node.id])
+    return str(ast.literal_eval(node))
+
+
+class QosTable(Directive):
+    """The QoSProfile assignments of m2h_ros/ros/qos.py with the comment block above each."""
+
+    def run(self):
+        lines = (ROOT / "m2h_ros" / "ros" / "qos.py").read_text().splitlines()
+        constants: dict[str, object] = {}
+        rows = []
+        for node in ast.parse("\n".join(lines)).body:
+            if not isinstance(node, ast.Assign) or not isinstance(node.targets[0], ast.Name):
+                continue
+            name = node.targets[0].id
+            if isinstance(node.value, ast.Constant):
+                constants[name] = node.value.value
+            elif isinstance(node.value, ast.Call) and getattr(node.value.func, "id", "") == "QoSProfile":
+                policy = {k.arg: _policy(k.value, constants) for k in node.value.keywords}
+                comment, at = [], node.lineno - 2
+                while at >= 0 and lines[at].split("=")[0].strip().isupper():  # its own constants, e.g. a depth
+                    at -= 1
+                while at >= 0 and lines[at].lstrip().startswith("#"):
+                    comment.insert(0, lines[at].lstrip("# ").strip())
+                    at -= 1
+                rows.append([nodes.literal(text=name), nodes.Text(f"{policy['history']} {policy['depth']}"),
+                             nodes.Text(policy["reliability"]), nodes.Text(policy["durability"]),
+                             nodes.Text(" ".join(comment))])
+        if not rows:
+            LOG.warning("no QoSProfile found in m2h_ros/ros/qos.py", location=self.state.document)
+        return [_table(["profile", "history", "reliability", "durability", "why"], rows, [12, 12, 10, 12, 54])]
+
+
 class MessageDefinitions(Directive):
     """Every message definition of the m2h_msgs package, as a section with the file's text."""
 
@@ -145,6 +185,7 @@ def setup(app):
     app.connect("source-read", title_results_tables)
     app.add_directive("m2h-config", ConfigTable)
     app.add_directive("m2h-topics", TopicTable)
+    app.add_directive("m2h-qos", QosTable)
     app.add_directive("m2h-messages", MessageDefinitions)
     app.add_directive("m2h-commands", CommandList)
     app.add_role("repo", repo_role)
