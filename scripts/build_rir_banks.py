@@ -1,6 +1,6 @@
 """Build the binaural RIR banks of a scene split into the on-disk cache (data_dir()/rir_banks).
 
-    python scripts/build_rir_banks.py --split train [--scenes 3] [--workers 2]
+    python scripts/build_rir_banks.py --split train [--scenes 3] [--workers 2] [--head free_field:0.2]
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import time
 import sys
 
 from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.scene import PRESETS, SCENE_SPLITS, load_split
 from m2h_ros.errors import reports_errors
@@ -22,10 +23,11 @@ def main(argv: list[str] | None = None) -> int | None:
     parser.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
     parser.add_argument("--workers", type=int, default=2, help="processes over source nodes")
+    parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
     args = parser.parse_args(argv)
 
     scenes = load_split(args.split, preset=args.preset)[: args.scenes]
-    config = AcousticsConfig()
+    config = AcousticsConfig(head=args.head)
     for scene in scenes:
         start = time.perf_counter()
         bank = RirBank(scene, config)

@@ -7,7 +7,9 @@
 Stand In-Place at step 0 of near-target test episodes (heard and unheard sounds; the first --count
 episodes of the standard 1000-episode files), f^B + f^M + f^R with fresh memory; definitions in
 ``m2h_ros/training/passive_eval.py``. Prints a table and the share of the floor-to-oracle gap the
-separator closes, and writes JSON (default: <checkpoint stem>_passive.json next to the checkpoint).
+separator closes, and writes JSON (default: <checkpoint stem>_passive.json next to the checkpoint)
+with every episode's scores. ``--paired-with OTHER.json`` (another separator's JSON from this command,
+same episodes and head) adds the paired difference of the separator's scores, this one minus that one.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from m2h_ros.core.audio.scoring import DEPLOYABLE_REFERENCE
 from m2h_ros.core.results import METRIC_LABELS, METRICS
 from m2h_ros.core.sounds.library import SoundLibrary
@@ -26,7 +30,7 @@ from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
-from m2h_ros.errors import reports_errors
+from m2h_ros.errors import ConfigError, reports_errors
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
 from m2h_ros.paths import repo_relative
 from m2h_ros.training.passive_eval import ESTIMATES, evaluate_passive, gap_closed, summarize
@@ -50,6 +54,30 @@ def format_table(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def paired_difference(results: dict[str, dict], args: argparse.Namespace) -> None:
+    """Add ``paired`` to each split: mean and standard error of (this separator - the other one's) per
+    episode, for the separator's estimates; printed too."""
+    other = json.loads(args.paired_with.read_text())
+    for key, mine in (("task", args.task), ("count_per_split", args.count), ("head", args.head)):
+        if other.get(key) != mine:
+            raise ConfigError(f"--paired-with {args.paired_with}: its {key} is {other.get(key)!r}, this run's {mine!r}")
+    for split, result in results.items():
+        theirs = other["results"].get(split, {}).get("per_episode")
+        if theirs is None:
+            raise ConfigError(f"--paired-with {args.paired_with} has no per-episode {split} scores")
+        paired = {"with": repo_relative(args.paired_with), "checkpoint": other["checkpoint"]}
+        for estimate in GAP_ESTIMATES:
+            paired[estimate] = {}
+            for metric in METRICS:
+                diff = np.subtract(result["per_episode"][estimate][metric], theirs[estimate][metric])
+                paired[estimate][metric] = {"mean": float(diff.mean()),
+                                            "sem": float(diff.std(ddof=1) / np.sqrt(len(diff)))}
+        result["paired"] = paired
+        si_sdr = paired["separator"]["si_sdr"]
+        print(f"{split:<8} paired: {LABELS['separator']} minus {other['checkpoint']}'s, SI-SDR (GT phase) "
+              f"{si_sdr['mean']:+.2f} ± {si_sdr['sem']:.2f} dB (mean ± standard error)")
+
+
 @reports_errors("eval_passive")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -59,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default: next to the checkpoint)")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
+    parser.add_argument("--paired-with", type=Path, default=None,
+                        help="JSON of another separator on the same episodes and head: add the paired difference")
     args = parser.parse_args(argv)
     env_config = EnvConfig(camera=False, acoustics=AcousticsConfig(head=args.head))
     loaded = load_separator(args.checkpoint)
@@ -66,10 +96,15 @@ def main(argv: list[str] | None = None) -> int:
     results, started = {}, time.perf_counter()
     for split in args.sound_split or SOUND_SPLITS:
         episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
-        summary = summarize(evaluate_passive(loaded, episodes[: args.count], library, env_config=env_config))
+        scores = evaluate_passive(loaded, episodes[: args.count], library, env_config=env_config)
+        summary = summarize(scores)
         results[split] = {"summary": summary, "gap_closed": {e: {m: gap_closed(summary, m, e) for m in METRICS}
-                                                              for e in GAP_ESTIMATES}}
+                                                              for e in GAP_ESTIMATES},
+                          "per_episode": {e: {m: [round(float(v), 4) for v in values] for m, values in metrics.items()}
+                                          for e, metrics in scores.items()}}
     print(format_table(results))
+    if args.paired_with:
+        paired_difference(results, args)
     out = args.out or args.checkpoint.with_name(f"{args.checkpoint.stem}_passive.json")
     given = sys.argv[1:] if argv is None else argv
     document = {"command": shlex.join(["scripts/eval_passive.py", *given]),
