@@ -109,9 +109,6 @@ class LiveViewConfig(Config):
                         min=0, max=65535)
     topics: tuple[str, ...] = setting((), "topics to serve; empty: every topic seen on the graph")
     discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01, max=60.0)
-    audio_gain: float = setting(0.04, "gain from the graph's float audio to the derived pcm-s16 tracks "
-                                "(mixtures peak near 20; 0.04 keeps them below full scale)",
-                                min=1e-6, max=100.0)
 
 
 @dataclass(frozen=True)

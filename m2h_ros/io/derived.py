@@ -22,8 +22,7 @@ from m2h_ros.io.msg_defs import RAW_AUDIO, TF_MESSAGE, typestore
 
 TF, TF_STATIC = "/tf", "/tf_static"
 PCM_SUFFIX = "/pcm"  # RawAudio of an audio topic: the same name with this suffix
-# Float audio to pcm-s16: the live view's default gain (live_view_node.audio_gain), so a bag's tracks sound
-# as the live ones (mixtures peak near 20; full scale is 25).
+# Float audio to pcm-s16, in bags and in the live view alike (mixtures peak near 20; full scale is 25).
 PCM_GAIN = 0.04
 _INFINITE = QosTime(9223372036, 854775807)  # rmw's "infinite" duration, as a publisher's QoS reports it
 

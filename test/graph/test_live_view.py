@@ -1,12 +1,11 @@
 """live_view_node serves a pipeline run to a Foxglove WebSocket client (a plain `websockets` client speaking
 the protocol): every topic advertised as a ROS 2 channel with its message definition, messages that decode
-with that definition alone and equal what the recorder wrote, the derived pcm-s16 audio tracks; bound to
-localhost; a taken port is named."""
+with that definition alone and equal what the recorder wrote, the derived TF tree and pcm-s16 audio;
+bound to localhost; a taken port is named."""
 
 from __future__ import annotations
 
 import asyncio
-import base64
 import json
 import socket
 import struct
@@ -17,18 +16,17 @@ import time
 import numpy as np
 import pytest
 import websockets
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap_ros2._dynamic import generate_dynamic
 from pipeline_helpers import ROOT, ROS2RUN, node_env, tiny_sets
 from rosbags.rosbag2 import Reader
 
 from m2h_ros.io.msg_defs import typestore
-from m2h_ros.node_configs import LiveViewConfig
+from m2h_ros.io.derived import PCM_GAIN
 
 pytestmark = pytest.mark.graph
 SUBPROTOCOL = "foxglove.sdk.v1"  # the only one foxglove-sdk 0.30's server accepts
 MESSAGE_DATA = 1  # binary opcode of a message on a subscribed channel
-CHECKED = ("/audio", "/odom", "/scores/step", "/audio/pcm", "/separator/audio/pcm")
+CHECKED = ("/audio", "/odom", "/scores/step", "/audio/pcm", "/separator/audio/pcm", "/tf", "/tf_static")
 
 
 def free_port() -> int:
@@ -57,6 +55,8 @@ async def watch(port: int, *, wanted: tuple[str, ...], count: int, timeout: floa
                 frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
             except TimeoutError:
                 continue
+            except websockets.ConnectionClosed:  # the run ended: the assertions name what was missing
+                break
             if isinstance(frame, str):
                 op = json.loads(frame)
                 if op["op"] == "advertise":
@@ -67,15 +67,6 @@ async def watch(port: int, *, wanted: tuple[str, ...], count: int, timeout: floa
                 subscription, _ = struct.unpack_from("<IQ", frame, 1)  # subscription id = channel id here
                 received.setdefault(channels[subscription]["topic"], []).append(frame[13:])
     return {c["topic"]: c for c in channels.values()}, received
-
-
-def protobuf_class(channel: dict):
-    """The message class a Foxglove client builds from a protobuf channel's FileDescriptorSet."""
-    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
-    pool = descriptor_pool.DescriptorPool()
-    for file in files.file:
-        pool.Add(file)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
 
 
 def recorded(bag, topic: str) -> dict[bytes, int]:
@@ -113,7 +104,7 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
         assert len(received.get(topic, ())) >= 3, (topic, {t: len(m) for t, m in received.items()})
 
     decode = {t: generate_dynamic(channels[t]["schemaName"], channels[t]["schema"])[channels[t]["schemaName"]]
-              for t in ("/audio", "/odom", "/scores/step")}
+              for t in CHECKED}
     audio = [decode["/audio"](payload) for payload in received["/audio"]]
     assert all(a.sample_rate == 16000 and a.channels == 2 and len(a.samples) == 2 * 16000 for a in audio)
     odom = [decode["/odom"](payload) for payload in received["/odom"]]
@@ -124,23 +115,26 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
         in_bag = recorded(tmp_path / "bag", topic)
         assert all(payload in in_bag for payload in received[topic]), topic
 
-    raw_audio = protobuf_class(channels["/audio/pcm"])
-    assert channels["/audio/pcm"]["schemaName"] == "foxglove.RawAudio"
+    # The derived topics, as the recorder writes them into the bag: a connected tree, audio to play.
+    edges = {(t.header.frame_id, t.child_frame_id) for topic in ("/tf", "/tf_static")
+             for payload in received[topic] for t in decode[topic](payload).transforms}
+    assert edges == {("map", "odom"), ("odom", "base_link"), ("base_link", "head"), ("head", "camera")}
+    assert channels["/audio/pcm"]["schemaName"] == "foxglove_msgs/msg/RawAudio"
     by_stamp = {(a.header.stamp.sec, a.header.stamp.nanosec): a for a in audio}
     matched = 0
     for payload in received["/audio/pcm"]:
-        pcm = raw_audio.FromString(payload)
+        pcm = decode["/audio/pcm"](payload)
         assert (pcm.format, pcm.sample_rate, pcm.number_of_channels) == ("pcm-s16", 16000, 2)
         assert len(pcm.data) == 2 * 2 * 16000
-        source = by_stamp.get((pcm.timestamp.seconds, pcm.timestamp.nanos))
-        if source is not None:  # frames of (left, right) samples, scaled by the live view's gain
-            heard = np.frombuffer(pcm.data, "<i2").reshape(-1, 2).T / 32767.0
+        source = by_stamp.get((pcm.timestamp.sec, pcm.timestamp.nanosec))
+        if source is not None:  # frames of (left, right) samples, scaled by the fixed gain
+            heard = np.frombuffer(bytes(pcm.data), "<i2").reshape(-1, 2).T / 32767.0
             planar = np.asarray(source.samples, np.float32).reshape(2, -1)
-            expected = np.clip(planar * LiveViewConfig().audio_gain, -1.0, 1.0)
+            expected = np.clip(planar * PCM_GAIN, -1.0, 1.0)
             assert np.abs(heard - expected).max() < 1e-4 and np.abs(expected).max() > 0.05
             matched += 1
     assert matched >= 1
-    mono = protobuf_class(channels["/separator/audio/pcm"]).FromString(received["/separator/audio/pcm"][0])
+    mono = decode["/separator/audio/pcm"](received["/separator/audio/pcm"][0])
     assert (mono.format, mono.number_of_channels, len(mono.data)) == ("pcm-s16", 1, 2 * 16000)
 
 
