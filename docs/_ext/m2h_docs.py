@@ -8,6 +8,7 @@ drift from it, and a role that checks repository paths.
   from the source, so the docs build needs no ROS).
 * ``{m2h-messages}``: every ``msg_defs/msg/*.msg``, whole.
 * ``{m2h-commands} scripts/*.py``: each matching script with the first paragraph of its docstring.
+* ``{m2h-help} m2h_ros.replay_cli:build_parser m2h-eval``: a command's ``--help``, from its parser.
 * ``{repo}`path``: a repository path in code style; a path that does not exist is a build warning
   (an error under ``-W``).
 * Generated tables under ``results/`` that open without a heading (``paired.md``) get their path as
@@ -166,6 +167,21 @@ class CommandList(Directive):
         return [_table(["command", "what it does"], rows, [30, 70])]
 
 
+class CommandHelp(Directive):
+    """The ``--help`` text of a command whose argparse parser a function builds."""
+
+    required_arguments = 2
+
+    def run(self):
+        module, _, function = self.arguments[0].partition(":")
+        parser = getattr(importlib.import_module(module), function)()
+        parser.prog = self.arguments[1]
+        text = parser.format_help()
+        block = nodes.literal_block(text, text)
+        block["language"] = "text"
+        return [block]
+
+
 def repo_role(name, rawtext, text, lineno, inliner, options=None, content=None):
     """``{repo}`path```: a repository path, checked to exist."""
     path = text.strip()
@@ -188,5 +204,6 @@ def setup(app):
     app.add_directive("m2h-qos", QosTable)
     app.add_directive("m2h-messages", MessageDefinitions)
     app.add_directive("m2h-commands", CommandList)
+    app.add_directive("m2h-help", CommandHelp)
     app.add_role("repo", repo_role)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
