@@ -4,9 +4,9 @@ from glob import glob
 
 from setuptools import find_packages, setup
 
+from m2h_ros.nodes.entry import NODES
+
 PACKAGE = "m2h_ros"
-NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node",
-         "capture_node")
 
 setup(
     name=PACKAGE,
@@ -18,6 +18,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/params", glob("params/*.yaml") + glob("params/*.xml")),
+        (f"share/{PACKAGE}/params/recipes", glob("params/recipes/*")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],
@@ -27,7 +28,7 @@ setup(
     description="Active audio-visual source separation (Move2Hear) as a ROS 2 node suite",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES]
+        "console_scripts": [f"{node} = {PACKAGE}.nodes.entry:{node}" for node in NODES]
         + ["m2h-separate = m2h_ros.separate_cli:main", "m2h-eval = m2h_ros.replay_cli:main"],
     },
 )

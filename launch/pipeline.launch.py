@@ -1,48 +1,63 @@
-"""ros2 launch m2h_ros pipeline.launch.py [episodes:=3] [controller:=doa] [task:=near_target] [live_view:=true]
+"""ros2 launch m2h_ros pipeline.launch.py [episodes:=3] [controller:=doa] [task:=far_target] [live_view:=true] ...
 
 The five nodes with their params files from the package share, as scripts/run_pipeline.py starts
-them (for machines with ROS 2 Jazzy and `ros2 launch`; run_pipeline.py also builds the data first
-and prints the scores table, so prefer it where launch is not available). The run ends when the
-simulator exits after its last episode: the other nodes are then shut down. With live_view:=true,
-live_view_node also serves the run to Foxglove (params/live_view_node.yaml: ws://127.0.0.1:8765).
+them (`ros2 launch m2h_ros pipeline.launch.py --show-args` lists every argument). Each node prepares
+the data it needs. The run ends when the simulator exits after its last episode; any node that exits
+before that, or with an error, ends the launch with exit code 1 naming it. Results go to a fresh
+runs/<date-time> folder unless output:= names one (overwrite:=true replaces a bag there). With
+live_view:=true, live_view_node also serves the run to Foxglove (params/live_view_node.yaml:
+ws://127.0.0.1:8765).
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
-from launch.event_handlers import OnProcessExit
-from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-NODES = ("live_view_node", "recorder_node", "evaluator_node", "controller_node", "separator_node", "sim_node")
+from m2h_ros.node_configs import NODE_CONFIGS
+from m2h_ros.ros.launching import Argument, declare, dds_profile, exit_handler, parameters, run_directory
+
+NODES = NODE_CONFIGS  # node -> its config dataclass, in start order
+OPTIONAL = {"live_view_node": "live_view"}  # node -> the argument that starts it
+ARGUMENTS = (
+    Argument("task", "sim_node", "task"),
+    Argument("sound_split", "sim_node", "sound_split"),
+    Argument("first_episode", "sim_node", "first_episode"),
+    Argument("episodes", "sim_node", "num_episodes", default="3"),
+    Argument("mode", "sim_node", "mode"),
+    Argument("rate_hz", "sim_node", "rate_hz"),
+    Argument("step_timeout_s", "sim_node", "step_timeout_s"),
+    Argument("startup_timeout_s", "sim_node", "startup_timeout_s"),
+    Argument("controller", "controller_node", "policy"),
+    Argument("controller_checkpoint", "controller_node", "checkpoint"),
+    Argument("separator_checkpoint", "separator_node", "checkpoint"),
+    Argument("output", "recorder_node", "output", default=run_directory(),
+             description="run directory: the bag in OUTPUT/bag, the scores in OUTPUT/scores (default: a fresh "
+                         "runs/<date-time> per launch)"),
+    Argument("overwrite", "recorder_node", "overwrite",
+             description="replace a bag already in the run directory (else the recorder stops, naming it)"),
+)
 
 
 def generate_launch_description():
     share = get_package_share_directory("m2h_ros")
     params = {name: os.path.join(share, "params", f"{name}.yaml") for name in NODES}
-    arguments = [
-        DeclareLaunchArgument("episodes", default_value="3", description="episodes to play"),
-        DeclareLaunchArgument("task", default_value="near_target", description="near_target | far_target"),
-        DeclareLaunchArgument("controller", default_value="move2hear", description="controller_node policy"),
-        DeclareLaunchArgument("output", default_value="runs/launch", description="run directory"),
-        DeclareLaunchArgument("live_view", default_value="false", description="also serve the run to Foxglove"),
-    ]
-    output = LaunchConfiguration("output")
-    overrides = {
-        "sim_node": {"num_episodes": LaunchConfiguration("episodes"), "task": LaunchConfiguration("task"),
-                     "expect_nodes": ["separator_node", "controller_node", "evaluator_node", "recorder_node"]},
-        "controller_node": {"policy": LaunchConfiguration("controller")},
-        "evaluator_node": {"output_dir": [output, "/scores"]},
-        "recorder_node": {"output": [output, "/bag"]},
-    }
-    conditions = {"live_view_node": IfCondition(LaunchConfiguration("live_view"))}  # opt-in
+    configs = {name: config.from_yaml(params[name], name) for name, config in NODES.items()}
+    overrides = parameters(ARGUMENTS, configs)
+    output = LaunchConfiguration("output")  # the run directory, not the bag itself
+    overrides["recorder_node"]["output"] = [output, "/bag"]  # a list of text and substitutions: one string
+    overrides["evaluator_node"] = {"output_dir": [output, "/scores"]}
+    overrides["sim_node"]["expect_nodes"] = [name for name in NODES if name != "sim_node" and name not in OPTIONAL]
+    optional = [DeclareLaunchArgument("live_view", default_value="false", choices=["true", "false"],
+                                      description="also serve the run to Foxglove (live_view_node)")]
     nodes = {name: Node(package="m2h_ros", executable=name, name=name, output="screen",
-                        parameters=[params[name], overrides.get(name, {})], condition=conditions.get(name))
+                        parameters=[params[name], overrides.get(name, {})],
+                        condition=IfCondition(LaunchConfiguration(OPTIONAL[name])) if name in OPTIONAL else None)
              for name in NODES}
-    end_with_sim = RegisterEventHandler(OnProcessExit(target_action=nodes["sim_node"],
-                                                      on_exit=[EmitEvent(event=Shutdown(reason="run finished"))]))
-    return LaunchDescription([*arguments, *nodes.values(), end_with_sim])
+    handlers = [exit_handler(action, name, finishes_run=name == "sim_node") for name, action in nodes.items()]
+    return LaunchDescription([*declare(ARGUMENTS, configs), *optional, *dds_profile(share), *nodes.values(),
+                              *handlers])

@@ -94,6 +94,7 @@ class EvaluatorConfig(Config):
 class RecorderConfig(Config):
     output: str = setting("", "bag directory to create; empty: runs/<date-time> under the current "
                           "directory")
+    overwrite: bool = setting(False, "replace a bag already at output (else the node stops, naming it)")
     topics: tuple[str, ...] = setting((), "topics to record; empty: every topic seen on the graph")
     discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01,
                                         max=60.0)
@@ -130,3 +131,10 @@ class CaptureNodeConfig(Config):
                               "when it changes)")
     diagnostics_period_s: float = setting(1.0, "seconds between status reports on /diagnostics",
                                           min=0.05, max=3600.0)
+
+
+# The pipeline's nodes and their config dataclasses, in the order the pipeline starts them: the live
+# view and the recorder first (they hear every topic from its first message), the simulator last (it
+# waits for the others).
+NODE_CONFIGS = {"live_view_node": LiveViewConfig, "recorder_node": RecorderConfig, "evaluator_node": EvaluatorConfig,
+                "controller_node": ControllerConfig, "separator_node": SeparatorNodeConfig, "sim_node": SimConfig}

@@ -15,6 +15,7 @@ plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/log
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import random
 import shutil
@@ -28,10 +29,11 @@ from pathlib import Path
 import yaml
 
 from m2h_ros.errors import M2HError
+from m2h_ros.node_configs import NODE_CONFIGS
 
 ROOT = Path(__file__).resolve().parents[1]
 # Start order: the live view and the recorder first, so they hear every topic from its first message.
-NODES = ("live_view_node", "recorder_node", "evaluator_node", "controller_node", "separator_node", "sim_node")
+NODES = tuple(NODE_CONFIGS)
 STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "recorder_node", "live_view_node")
 LIVE_VIEW_PORT = 8765  # Foxglove's default
 STOP_TIMEOUT_S = 20.0
@@ -94,12 +96,15 @@ def ros_value(value: object) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
-def sim_config(params: dict[str, object]):
-    """The SimConfig the sim node will build (params file + overrides): validated before any start."""
-    from m2h_ros.node_configs import SimConfig
-
-    base = SimConfig.from_yaml(ROOT / "params" / "sim_node.yaml", "sim_node")
-    return base.replace(**{k: tuple(v) if isinstance(v, list) else v for k, v in params.items()})
+def node_configs(params: dict[str, dict[str, object]]) -> dict:
+    """The config each node will build (its params file + this run's values): a bad --set value, an
+    unknown parameter or a wrong type fails here (ConfigError naming it), before any node starts."""
+    configs = {}
+    for node, values in params.items():
+        path = ROOT / "params" / f"{node}.yaml"
+        base = dataclasses.asdict(NODE_CONFIGS[node].from_yaml(path, node))
+        configs[node] = NODE_CONFIGS[node].from_dict({**base, **values}, source=f"{path.name} with this run's values")
+    return configs
 
 
 def prepare_data(config) -> None:
@@ -145,7 +150,7 @@ def main(argv=None) -> int:
         raise SystemExit(f"run_pipeline: {args.out / 'bag'} exists; choose another --out")
     params = overrides(args)
     try:
-        prepare_data(sim_config(params["sim_node"]))
+        prepare_data(node_configs(params)["sim_node"])
     except M2HError as exc:
         raise SystemExit(f"run_pipeline: {exc}") from exc
     (args.out / "logs").mkdir(parents=True, exist_ok=True)
@@ -175,12 +180,9 @@ def main(argv=None) -> int:
                                            env=env, start_new_session=True, cwd=ROOT)
         while procs["sim_node"].poll() is None:
             early = [n for n, p in procs.items() if n != "sim_node" and p.poll() is not None]
-            if early:
-                print(f"[run] {', '.join(early)} exited during the run; the simulator will report the "
-                      f"missing answers", flush=True)
-                if "live_view_node" in early:  # the simulator waits for no viewer: end the run here
-                    stop(procs["sim_node"])
-                procs["sim_node"].wait()
+            if early:  # the run cannot go on: stop now rather than wait out the sim's step timeout
+                print(f"[run] {', '.join(early)} exited during the run: stopping every node", flush=True)
+                stop(procs["sim_node"])
                 break
             time.sleep(0.2)
     except KeyboardInterrupt:

@@ -1,6 +1,8 @@
 """The launch file (for machines with `ros2 launch`, which this venv lacks) starts every node of the
-pipeline with its own params file and overrides its config dataclass accepts, uses the arguments it
-declares, ends the run with the simulator, and is installed with the package.
+pipeline with its own params file and overrides its config dataclass accepts, declares every setting a
+user needs as an argument and uses it, gives each launch a fresh run directory, sets the DDS profile,
+ends the run with the simulator and on any other node's exit (naming it), and is installed with the
+package.
 
 `launch`, `launch_ros` and the package index are stood in for at the import boundary: each class the
 file imports records what it was built with, and the description generate_launch_description()
@@ -10,6 +12,7 @@ returns is inspected. Substitutions are performed and parameter values typed as 
 
 import importlib.util
 import os
+import re
 import sys
 import types
 from pathlib import Path
@@ -17,15 +20,17 @@ from pathlib import Path
 import pytest
 import yaml
 
-from m2h_ros.node_configs import (PIPELINE_NODES, ControllerConfig, EvaluatorConfig, LiveViewConfig,
-                                  RecorderConfig, SeparatorNodeConfig, SimConfig)
+from m2h_ros.node_configs import NODE_CONFIGS, PIPELINE_NODES
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "launch" / "pipeline.launch.py"
-CONFIGS = {"sim_node": SimConfig, "separator_node": SeparatorNodeConfig, "controller_node": ControllerConfig,
-           "evaluator_node": EvaluatorConfig, "recorder_node": RecorderConfig, "live_view_node": LiveViewConfig}
+CONFIGS = NODE_CONFIGS
 STOOD_IN = ("launch", "launch.actions", "launch.conditions", "launch.event_handlers", "launch.events",
-            "launch.substitutions", "launch_ros", "launch_ros.actions", "launch_ros.substitutions")
+            "launch.substitutions", "launch_ros", "launch_ros.actions", "launch_ros.substitutions",
+            "launch_ros.parameter_descriptions")
+# What a user of the pipeline sets per run: each must be a launch argument.
+USER_SETTINGS = {"task", "sound_split", "first_episode", "episodes", "mode", "rate_hz", "step_timeout_s",
+                 "startup_timeout_s", "controller", "separator_checkpoint", "output", "overwrite"}
 
 
 class Entity:
@@ -77,16 +82,23 @@ def argument(entity: Entity, position: int, name: str):
 
 
 @pytest.fixture
-def description(monkeypatch) -> Entity:
+def launch_module(monkeypatch) -> types.ModuleType:
+    monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
     for name in STOOD_IN:
         monkeypatch.setitem(sys.modules, name, stand_in(name))
+    monkeypatch.delitem(sys.modules, "m2h_ros.ros.launching", raising=False)  # imported again over the stand-ins
     index = types.ModuleType("ament_index_python.packages")
     index.get_package_share_directory = {"m2h_ros": str(ROOT)}.__getitem__  # the source tree's params/
     monkeypatch.setitem(sys.modules, "ament_index_python.packages", index)
     spec = importlib.util.spec_from_file_location("pipeline_launch", LAUNCH)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.generate_launch_description()
+    return module
+
+
+@pytest.fixture
+def description(launch_module) -> Entity:
+    return launch_module.generate_launch_description()
 
 
 @pytest.fixture
@@ -112,6 +124,8 @@ def perform(value, defaults: dict[str, str]) -> str:
         return perform(defaults[name], defaults)
     if type(value).__name__ == "TextSubstitution":
         return value.kwargs["text"]
+    if type(value).__name__ == "ParameterValue":
+        return perform(value.args[0], defaults)
     raise AssertionError(f"this test cannot perform {value!r}: teach perform() what it gives")
 
 
@@ -123,6 +137,8 @@ def parameter_value(value, defaults: dict[str, str]):
     if isinstance(value, list | tuple) and not any(isinstance(v, Entity) for v in value):
         return tuple(value)
     text = perform(value, defaults)
+    if type(value).__name__ == "ParameterValue" and value.kwargs.get("value_type") in (int, float, str):
+        return value.kwargs["value_type"](text)  # typed as its field: a path of digits stays a string
     loaded = yaml.safe_load(text)
     if loaded is None:
         return ""
@@ -171,14 +187,67 @@ def test_every_declared_argument_is_used_and_every_used_one_declared(description
     assert resolved_config(started["controller_node"], defaults).policy == defaults["controller"]
 
 
+def exit_handlers(description) -> dict:
+    """node name -> the on_exit callable of its OnProcessExit handler."""
+    names = {id(node): name for name, node in nodes(description).items()}
+    return {names[id(h.kwargs["target_action"])]: h.kwargs["on_exit"] for h in of_kind(description, "OnProcessExit")}
+
+
 def test_the_simulator_waits_for_every_node_and_its_exit_ends_the_run(description, defaults):
     started = nodes(description)
     sim = resolved_config(started["sim_node"], defaults)
     assert set(sim.expect_nodes) == set(started) & set(PIPELINE_NODES)
-    ending = [h for h in of_kind(description, "OnProcessExit")
-              if h.kwargs.get("target_action") in (None, started["sim_node"])
-              and any(type(e).__name__ == "Shutdown" for e in of_kind(h, "Shutdown"))]
-    assert ending, "nothing shuts the launch down when the simulator exits"
+    running = types.SimpleNamespace(is_shutdown=False)
+    (shutdown,) = exit_handlers(description)["sim_node"](types.SimpleNamespace(returncode=0), running)
+    assert type(shutdown.kwargs["event"]).__name__ == "Shutdown"
+
+
+def test_any_other_exit_ends_the_launch_with_an_error_naming_the_node(description):
+    # Jazzy's launch returns 0 after any shutdown: only an exception out of a handler makes it exit 1.
+    node_exited = sys.modules["m2h_ros.ros.launching"].NodeExited  # as imported over the stand-ins
+    handlers = exit_handlers(description)
+    assert set(handlers) == set(nodes(description))
+    running, stopping = types.SimpleNamespace(is_shutdown=False), types.SimpleNamespace(is_shutdown=True)
+    for name, on_exit in handlers.items():
+        for code in (2, -9) if name == "sim_node" else (0, 2, -9):
+            with pytest.raises(node_exited, match=f"^{name} exited with code {code} before the run finished"):
+                on_exit(types.SimpleNamespace(returncode=code), running)
+        for code in (0, -2, -15):  # stopped by launch itself
+            assert on_exit(types.SimpleNamespace(returncode=code), stopping) is None
+        with pytest.raises(node_exited, match=f"^{name} exited with code 2 while the run was stopping"):
+            on_exit(types.SimpleNamespace(returncode=2), stopping)
+
+
+def test_every_setting_a_user_needs_is_an_argument(description, defaults):
+    declared = {argument(a, 0, "name"): a.kwargs for a in of_kind(description, "DeclareLaunchArgument")}
+    assert USER_SETTINGS <= set(declared)
+    assert all(kwargs["description"] for kwargs in declared.values())
+    assert declared["mode"]["choices"] == ["lockstep", "free_running"]
+    started = nodes(description)
+    sim = resolved_config(started["sim_node"], defaults)
+    assert (sim.sound_split, sim.first_episode, sim.mode) == (defaults["sound_split"], 0, "lockstep")
+    assert resolved_config(started["recorder_node"], defaults).overwrite is False
+
+
+def test_each_launch_gets_a_fresh_run_directory(description, defaults):
+    assert re.fullmatch(r"runs/\d{8}-\d{6}", defaults["output"])
+    started = nodes(description)
+    assert resolved_config(started["recorder_node"], defaults).output == defaults["output"] + "/bag"
+    assert resolved_config(started["evaluator_node"], defaults).output_dir == defaults["output"] + "/scores"
+
+
+def test_the_dds_profile_is_set_unless_the_environment_names_one(launch_module, monkeypatch):
+    (setting,) = of_kind(launch_module.generate_launch_description(), "SetEnvironmentVariable")
+    assert setting.args == ("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "params" / "fastdds.xml"))
+    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", "/elsewhere.xml")
+    assert not of_kind(launch_module.generate_launch_description(), "SetEnvironmentVariable")
+
+
+def test_launch_and_launch_ros_are_declared_and_the_recipes_installed():
+    package = (ROOT / "package.xml").read_text()
+    for dependency in ("launch", "launch_ros"):
+        assert f"<exec_depend>{dependency}</exec_depend>" in package
+    assert 'glob("params/recipes/*")' in (ROOT / "setup.py").read_text()
 
 
 def test_the_launch_file_is_installed_with_the_package():

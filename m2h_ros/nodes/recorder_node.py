@@ -31,7 +31,8 @@ class RecorderNode(Node):
         super().__init__("recorder_node")
         self.config: RecorderConfig = declare_config(self, RecorderConfig)
         output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
-        self.writer = BagWriter(Path(output), flush_period_s=self.config.flush_period_s)
+        self.writer = BagWriter(Path(output), flush_period_s=self.config.flush_period_s,
+                                overwrite=self.config.overwrite)
         self.recorded: dict[str, str] = {}  # topic -> type name
         self.counts: dict[str, int] = {}
         self.held: list[tuple[str, bytes]] | None = []  # log lines before the first data; None once written
@@ -91,9 +92,11 @@ class RecorderNode(Node):
             self.write_held(self.get_clock().now().nanoseconds)
         self.writer.close()
         total = sum(self.counts.values())
-        # The context may already be shut down (Ctrl-C): log without the node's rosout publisher.
-        rclpy.logging.get_logger("recorder").info(f"closed {self.writer.path}: {total} messages on {len(self.counts)} topics")
+        logger = self.get_logger().name
         super().destroy_node()
+        # Logged after the node is gone: the context may already be shut down (Ctrl-C), and a
+        # destroyed node's logger no longer goes through its rosout publisher.
+        rclpy.logging.get_logger(logger).info(f"closed {self.writer.path}: {total} messages on {len(self.counts)} topics")
 
 
 def main(args=None):

@@ -48,7 +48,7 @@ class SimNode(Node):
         super().__init__("sim_node")
         self.config: SimConfig = declare_config(self, SimConfig)
         cfg = self.config
-        library = sim_world.sound_library(cfg.sound_library)
+        library = sim_world.prepare_library(cfg)  # as scripts/run_pipeline.py does: an install has no scripts/
         env_config = sim_world.env_config(cfg)
         self.camera_config = env_config.camera_config
         self.player = EpisodePlayer(sim_world.sim_episodes(cfg, library), library, config=env_config)

@@ -21,13 +21,23 @@ class RunFinished(Exception):
     """Raised by a node's callback when its work is done: the node exits with code 0."""
 
 
+def default_name(node_type: type[Node]) -> str:
+    """The name a node of ``node_type`` takes unless remapped: each node lives in a module of its name
+    (m2h_ros/nodes/sim_node.py holds sim_node), so a node that fails in its constructor is named too."""
+    module = node_type.__module__
+    if module == "__main__":  # python -m m2h_ros.nodes.<node>
+        spec = getattr(sys.modules["__main__"], "__spec__", None)
+        module = spec.name if spec is not None else module
+    return module.rpartition(".")[2]
+
+
 def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     """Build and spin ``node_type`` until shutdown; exit code 2 on a configuration/data/pipeline error."""
     keep_freed_blocks()  # each step's messages are above glibc's initial mmap threshold
-    rclpy.init(args=args)
     node = None
     code = 0
     try:
+        rclpy.init(args=args)  # inside the try: a Ctrl-C here is a clean exit too
         # Built before the node, so a Ctrl-C right after the node says "ready" cannot land inside
         # the executor's constructor (that leaves a half-built executor whose __del__ raises).
         executor = StepExecutor()
@@ -45,7 +55,8 @@ def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
     except (KeyboardInterrupt, ExternalShutdownException, RunFinished):
         pass
     except M2HError as exc:
-        rclpy.logging.get_logger(node_type.__name__).fatal(f"{type(exc).__name__}: {exc}")
+        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(default_name(node_type))
+        logger.fatal(f"{type(exc).__name__}: {exc}")
         code = 2
     except Exception:
         # Ctrl-C / SIGTERM invalidates the context at once: a callback running then (e.g. a graph

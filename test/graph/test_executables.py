@@ -26,6 +26,8 @@ def test_ament_index_resolves_packages():
     share = Path(get_package_share_directory("m2h_ros"))
     assert (share / "package.xml").is_file()
     assert {p.name for p in (share / "params").glob("*.yaml")} >= {f"{n}.yaml" for n in NODES}
+    recipes = {p.name for p in (ROOT / "params" / "recipes").iterdir()}
+    assert recipes and {p.name for p in (share / "params" / "recipes").iterdir()} == recipes
 
 
 @pytest.mark.parametrize("node", NODES)
@@ -65,6 +67,22 @@ def test_node_starts_and_exits_on_sigint(node, processes, tmp_path, request):
     code, _, err = processes.interrupt(proc)
     assert code == 0, err
     assert "Traceback" not in err
+    if node == "recorder_node":  # logged once the node is gone, under the node's own name
+        assert f"[recorder_node]: closed {tmp_path / 'bag'}" in err, err
+
+
+def test_ctrl_c_while_a_node_is_still_importing_is_clean(processes):
+    exe = str(Path(get_package_prefix("m2h_ros")) / "lib" / "m2h_ros" / "separator_node")
+    for _ in range(3):
+        proc = processes.start([exe])
+        maps = Path(f"/proc/{proc.pid}/maps")
+        deadline = time.monotonic() + 60
+        while "libtorch" not in maps.read_text():  # torch is being imported: seconds before "ready"
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.01)
+        code, _, err = processes.interrupt(proc)
+        assert code == 0, err
+        assert "Traceback" not in err and "ready:" not in err, err
 
 
 def test_ctrl_c_the_moment_a_node_is_ready_is_clean(processes):
@@ -90,7 +108,7 @@ def test_invalid_choice_is_reported(processes):
     proc = processes.start([ROS2RUN, "m2h_ros", "sim_node", "--ros-args", "-p", "task:=bogus"])
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == 2
-    assert "SimConfig.task = 'bogus': must be one of 'near_target', 'far_target'" in err
+    assert "[sim_node]: ConfigError: SimConfig.task = 'bogus': must be one of 'near_target', 'far_target'" in err
 
 
 def test_separator_device_is_checked(processes):

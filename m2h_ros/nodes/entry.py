@@ -1,0 +1,34 @@
+"""The console scripts of the nodes (``ros2 run m2h_ros <node>``).
+
+Each imports its node module only when called, so a Ctrl-C while the node is still importing
+(seconds: torch is among its modules) ends it as quietly as one a moment later does: exit code 0, no
+traceback. Once the node has exited (run_node: its bag closed, its tables written) the process ends
+at once: Python's own finalisation after an rclpy shutdown could hang in native code for seconds
+(under ros2 launch every node was still alive 5 s after its SIGINT, until launch's SIGTERM)."""
+
+import importlib
+import os
+import sys
+
+NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node",
+         "capture_node")
+
+
+def run(node: str) -> None:
+    try:
+        module = importlib.import_module(f"m2h_ros.nodes.{node}")
+    except KeyboardInterrupt:
+        sys.exit(0)
+    try:
+        module.main()
+    except SystemExit as exc:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1)
+
+
+def __getattr__(name: str):
+    """``m2h_ros.nodes.entry:<node>``, the entry point setup.py declares for each node."""
+    if name in NODES:
+        return lambda: run(name)
+    raise AttributeError(name)
