@@ -80,7 +80,8 @@ class SeparatorNodeConfig(Config):
 @dataclass(frozen=True)
 class ControllerConfig(Config):
     policy: str = setting("move2hear", "which controller chooses the actions (default: the paper's Move2Hear, "
-                          "pi^Q near-target, pi^N + Stop far-target; docs/design/policies.md)", choices=CONTROLLER_NAMES)
+                          "pi^Q near-target, pi^N + Stop far-target; docs/design/policies.md); any name "
+                          "scripts/evaluate.py --list prints, other packages' plugins included", choices=CONTROLLER_NAMES)
     checkpoint: str = setting("", "checkpoint of a learned policy or of gan_et_al's sound locator; empty: "
                               "the shipped one")
     seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
