@@ -188,7 +188,7 @@ def _draw_map(ax, media: EpisodeMedia, path: np.ndarray, pose) -> None:
         ax.annotate("", xy=(x + 0.6 * np.cos(yaw), y + 0.6 * np.sin(yaw)), xytext=(x, y), zorder=6,
                     arrowprops=dict(arrowstyle="-|>", color="#1f77b4", lw=1.2))
     if media.sources:
-        ax.legend(fontsize=5, loc="upper right", framealpha=0.7)
+        ax.legend(fontsize=5, loc="upper center", bbox_to_anchor=(0.5, -0.07), ncol=2, frameon=False)  # off the plan
     points = [p[:2] for p in media.sources] + list(path)
     if media.grid is None and points:  # no plan: frame the path and the sources
         lo, hi = np.min(points, axis=0) - 1.5, np.max(points, axis=0) + 1.5

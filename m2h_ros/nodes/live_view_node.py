@@ -5,22 +5,38 @@ Every topic is served as a ROS 2 channel (raw CDR, schema = the message definiti
 Foxglove decodes each with no package of ours installed. Beside them, the topics a bag gets from the
 recorder (io/derived.py), made the same way, unless the graph publishes them itself: the TF tree
 (``/tf``, ``/tf_static``) and the audio as Foxglove ``RawAudio`` (``<audio topic>/pcm``, ``pcm-s16``),
-computed only while a client listens to one of them."""
+computed only while a client listens to one of them. A client that subscribes to a latched topic (the
+map, the static frames, the episode) gets its last message at once, as a late ROS subscriber would."""
 
 import foxglove
 from foxglove import Channel, Schema
+from foxglove.websocket import ServerListener
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy
 
 from m2h_ros.errors import LiveViewError
-from m2h_ros.io.derived import TF, TF_STATIC, Derived
+from m2h_ros.io.derived import TF_STATIC, Derived
 from m2h_ros.io.msg_defs import typestore
 from m2h_ros.node_configs import LiveViewConfig
 from m2h_ros.ros.introspection import adapted_qos, offered_topics
 from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.qos import subscription_events
+from m2h_ros.ros.qos import EPISODE_HISTORY, subscription_events
 from m2h_ros.ros.spin import run_node
 
 IGNORED_TOPICS = frozenset({"/parameter_events"})
+
+
+class LatchedReplay(ServerListener):
+    """Sends a latched topic's last message when a client subscribes to it (to every subscriber of the
+    channel: one repeat of a state message is harmless)."""
+
+    def __init__(self):
+        self.last: dict[str, tuple[Channel, bytes]] = {}  # topic -> its channel and last message
+
+    def on_subscribe(self, client, channel) -> None:
+        kept = self.last.get(channel.topic)
+        if kept is not None:
+            kept[0].log(kept[1])
 
 
 class LiveViewNode(Node):
@@ -28,16 +44,17 @@ class LiveViewNode(Node):
         super().__init__("live_view_node")
         self.config: LiveViewConfig = declare_config(self, LiveViewConfig)
         self.sink_context = foxglove.Context()  # its own: no other channel of the process reaches the clients
+        self.replay = LatchedReplay()
         try:
             self.server = foxglove.start_server(name="m2h_ros", host=self.config.host, port=self.config.port,
-                                                context=self.sink_context)
+                                                context=self.sink_context, server_listener=self.replay)
         except RuntimeError as exc:  # the SDK's FoxgloveError: port taken, unknown address
             raise LiveViewError(f"cannot serve on {self.config.host}:{self.config.port}: {exc}") from exc
         self.channels: dict[str, Channel | None] = {}  # graph topic -> its channel; None: cannot be served
         self.derived = Derived(namespace=self.get_namespace())
         self.derived_channels = {topic: self.channel(topic, type_name)
                                  for topic, type_name in self.derived.topics().items()}
-        self.tf_static: bytes | None = None  # sent again with each /tf: a client that joins late still gets it
+        self.latched: set[str] = {TF_STATIC}
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
         self.discover_topics()
         self.get_logger().info(f"serving the graph to Foxglove on ws://{self.config.host}:{self.server.port}")
@@ -63,6 +80,12 @@ class LiveViewNode(Node):
             if derived is not None:  # the graph publishes it (tf2_msgs installed): serve that one
                 derived.close()
             self.channels[topic] = channel
+            # Latched: every publisher keeps its last few messages for late joiners (the map, the static
+            # frames, the episode); a step stream keeps STEP_HISTORY (128) for lag, not as state.
+            offers = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+            if offers and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL and q.depth <= EPISODE_HISTORY
+                              for q in offers):
+                self.latched.add(topic)
             self.create_subscription(offer.msg_type, topic,
                                      lambda data, topic=topic, kind=offer.type_name: self.forward(topic, kind, data),
                                      adapted_qos(self, topic), raw=True,
@@ -71,18 +94,18 @@ class LiveViewNode(Node):
 
     def forward(self, topic: str, type_name: str, data: bytes) -> None:
         now = self.get_clock().now().nanoseconds
-        self.channels[topic].log(data, log_time=now)
+        self.log(topic, self.channels[topic], data, now)
         if not any(channel.has_sinks() for channel in self.derived_channels.values()):
             return
         for extra, _, extra_data in self.derived.feed(topic, type_name, data):
             channel = self.derived_channels.get(extra)
-            if channel is None:
-                continue
-            if extra == TF_STATIC:
-                self.tf_static = extra_data
-            channel.log(extra_data, log_time=now)
-            if extra == TF and self.tf_static is not None and TF_STATIC in self.derived_channels:
-                self.derived_channels[TF_STATIC].log(self.tf_static, log_time=now)
+            if channel is not None:
+                self.log(extra, channel, extra_data, now)
+
+    def log(self, topic: str, channel: Channel, data: bytes, now: int) -> None:
+        channel.log(data, log_time=now)
+        if topic in self.latched:
+            self.replay.last[topic] = (channel, data)
 
     def destroy_node(self) -> None:
         self.server.stop()

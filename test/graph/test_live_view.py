@@ -26,7 +26,10 @@ from m2h_ros.io.derived import PCM_GAIN
 pytestmark = pytest.mark.graph
 SUBPROTOCOL = "foxglove.sdk.v1"  # the only one foxglove-sdk 0.30's server accepts
 MESSAGE_DATA = 1  # binary opcode of a message on a subscribed channel
-CHECKED = ("/audio", "/odom", "/scores/step", "/audio/pcm", "/separator/audio/pcm", "/tf", "/tf_static")
+# Messages the first client waits for on each topic (/tf_static is sent once, then on each subscription).
+CHECKED = {"/audio": 3, "/odom": 3, "/scores/step": 3, "/audio/pcm": 3, "/separator/audio/pcm": 3, "/tf": 3,
+           "/tf_static": 1}
+LATCHED = {"/map": 1, "/tf_static": 1, "/episode": 1}  # what a client that joins mid-episode gets at once
 
 
 def free_port() -> int:
@@ -35,9 +38,9 @@ def free_port() -> int:
         return sock.getsockname()[1]
 
 
-async def watch(port: int, *, wanted: tuple[str, ...], count: int, timeout: float) -> tuple[dict, dict]:
+async def watch(port: int, *, wanted: dict[str, int], timeout: float) -> tuple[dict, dict]:
     """Connect (retrying until the server is up), subscribe to every channel as it is advertised and
-    collect messages until each wanted topic has ``count``: (channels by topic, topic -> payloads)."""
+    collect messages until each wanted topic has its count: (channels by topic, topic -> payloads)."""
     deadline = time.monotonic() + timeout
     while True:
         try:
@@ -50,7 +53,7 @@ async def watch(port: int, *, wanted: tuple[str, ...], count: int, timeout: floa
     channels: dict[int, dict] = {}
     received: dict[str, list[bytes]] = {}
     async with ws:
-        while any(len(received.get(t, ())) < count for t in wanted) and time.monotonic() < deadline:
+        while any(len(received.get(t, ())) < n for t, n in wanted.items()) and time.monotonic() < deadline:
             try:
                 frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
             except TimeoutError:
@@ -78,14 +81,15 @@ def recorded(bag, topic: str) -> dict[bytes, int]:
 
 def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir, tmp_path):
     port = free_port()
-    # Free-running at 4 steps/s: the episode lasts a few seconds, time for the client to subscribe.
+    # Free-running at 2 steps/s: the episode lasts about 10 s, time for two clients to subscribe.
     run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
-                            "--episodes", "1", "--controller", "random", "--mode", "free_running", "--rate", "4",
+                            "--episodes", "1", "--controller", "random", "--mode", "free_running", "--rate", "2",
                             "--live-view", str(port), "--set", "live_view_node.discovery_period_s=0.1",
                             *tiny_sets()], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                            env=node_env(small_data_dir), cwd=ROOT)
     try:
-        channels, received = asyncio.run(watch(port, wanted=CHECKED, count=3, timeout=180.0))
+        channels, received = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
+        _, late = asyncio.run(watch(port, wanted=LATCHED, timeout=5.0))  # the episode's map went out long ago
         listening = listening_addresses(port)
     finally:
         out, _ = run.communicate(timeout=240)
@@ -100,8 +104,10 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
         channel = channels[topic]
         assert (channel["encoding"], channel["schemaEncoding"]) == ("cdr", "ros2msg"), topic
         assert channel["schema"] == store.generate_msgdef(channel["schemaName"], ros_version=2)[0], topic
-    for topic in CHECKED:
-        assert len(received.get(topic, ())) >= 3, (topic, {t: len(m) for t, m in received.items()})
+    for topic, count in CHECKED.items():
+        assert len(received.get(topic, ())) >= count, (topic, {t: len(m) for t, m in received.items()})
+    for topic in LATCHED:
+        assert late.get(topic, [None])[0] == received[topic][-1], (topic, {t: len(m) for t, m in late.items()})
 
     decode = {t: generate_dynamic(channels[t]["schemaName"], channels[t]["schema"])[channels[t]["schemaName"]]
               for t in CHECKED}
