@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES
 from m2h_ros.config import DEVICES, Config, setting
+from m2h_ros.core.robot.base_motion import MotionLimits
 from m2h_ros.core.world.hrtf import parse_head
 from m2h_ros.errors import ConfigError
 
@@ -132,6 +133,13 @@ class CaptureNodeConfig(Config):
                               "when it changes)")
     diagnostics_period_s: float = setting(1.0, "seconds between status reports on /diagnostics",
                                           min=0.05, max=3600.0)
+
+
+@dataclass(frozen=True)
+class BaseNodeConfig(MotionLimits):
+    twist_stamped: bool = setting(True, "cmd_vel as geometry_msgs/TwistStamped (Jazzy's convention); false: "
+                                  "plain geometry_msgs/Twist")
+    frame_id: str = setting("base_link", "frame_id of the TwistStamped commands")
 
 
 # The pipeline's nodes and their config dataclasses, in the order the pipeline starts them: the live

@@ -15,6 +15,8 @@ MONAURAL = "separator/monaural"  # m2h_msgs/Spectrogram MONAURAL_ESTIMATE (separ
 REFINED = "separator/refined"  # m2h_msgs/Spectrogram REFINED (separator)
 SEPARATED_AUDIO = "separator/audio"  # m2h_msgs/BinauralAudio, 1 channel: refined, mixture phase
 COMMAND = "cmd"  # m2h_msgs/MotionCommand (controller)
+CMD_VEL = "cmd_vel"  # geometry_msgs/TwistStamped (or Twist): the velocity a robot base is sent (base)
+MOTION_RESULT = "motion_result"  # m2h_msgs/MotionResult: how the base carried out a command (base)
 STEP_SCORE = "scores/step"  # m2h_msgs/StepScore (evaluator)
 EPISODE_SCORE = "scores/episode"  # m2h_msgs/EpisodeScore (evaluator)
 # Seeing and hearing a run (rviz, Foxglove); TF goes on the standard /tf and /tf_static.

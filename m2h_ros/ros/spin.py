@@ -3,6 +3,7 @@
 import cProfile
 import os
 import resource
+import signal
 import sys
 import time
 from pathlib import Path
@@ -11,6 +12,7 @@ import rclpy
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from m2h_ros.allocator import keep_freed_blocks
 from m2h_ros.errors import M2HError
@@ -31,13 +33,26 @@ def default_name(node_type: type[Node]) -> str:
     return module.rpartition(".")[2]
 
 
-def run_node(node_type: type[Node], args: list[str] | None = None) -> None:
-    """Build and spin ``node_type`` until shutdown; exit code 2 on a configuration/data/pipeline error."""
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on_shutdown: bool = False) -> None:
+    """Build and spin ``node_type`` until shutdown; exit code 2 on a configuration/data/pipeline error.
+
+    ``publish_on_shutdown``: Ctrl-C and SIGTERM leave the context alive until the node is destroyed, so
+    its destroy_node() can still publish (a base's last zero velocity). rclpy's own handlers shut the
+    context down at the signal; Python's raise KeyboardInterrupt in the spin instead (the node needs a
+    timer, so that the executor's wait returns to Python)."""
     keep_freed_blocks()  # each step's messages are above glibc's initial mmap threshold
     node = None
     code = 0
     try:
-        rclpy.init(args=args)  # inside the try: a Ctrl-C here is a clean exit too
+        if publish_on_shutdown:
+            signal.signal(signal.SIGTERM, _interrupt)
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        else:
+            rclpy.init(args=args)  # inside the try: a Ctrl-C here is a clean exit too
         # Built before the node, so a Ctrl-C right after the node says "ready" cannot land inside
         # the executor's constructor (that leaves a half-built executor whose __del__ raises).
         executor = StepExecutor()

@@ -1,0 +1,1 @@
+"""Moving a robot base: the discrete actions carried out closed-loop on odometry."""
