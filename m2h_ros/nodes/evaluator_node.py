@@ -24,6 +24,7 @@ from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
 from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker, write_results
 from m2h_ros.node_configs import EvaluatorConfig
 from m2h_ros.ros import convert
+from m2h_ros.ros.introspection import raw_audio_publisher
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
 from m2h_ros.ros.spin import run_node
@@ -44,6 +45,7 @@ class EvaluatorNode(Node):
         self.pub_episode = self.create_publisher(EpisodeScore, topics.EPISODE_SCORE, STEP,
                                                  event_callbacks=publisher_events(self.get_logger(),
                                                                                   topics.EPISODE_SCORE))
+        self.pub_pcm = raw_audio_publisher(self, topics.GROUND_TRUTH, STEP)  # where foxglove_msgs is installed
         self.pub_target_image = self.create_publisher(
             Image, topics.TARGET_IMAGE, STEP, event_callbacks=publisher_events(self.get_logger(), topics.TARGET_IMAGE))
 
@@ -78,9 +80,11 @@ class EvaluatorNode(Node):
         stamp = self.get_clock().now().nanoseconds
         self.pub_step.publish(convert.step_score_msg(**values, geodesic_distance=truth_msg.geodesic_distance,
                                                      episode_id=episode_id, step=step, stamp_ns=stamp))
+        truth_stamp = convert.nanoseconds_of(truth_msg.header.stamp)
         target = np.abs(stft(truth.target_monaural[0], config=DEFAULT_STFT))
-        self.pub_target_image.publish(convert.spectrogram_image_msg(
-            spectrogram_image(target), stamp_ns=convert.nanoseconds_of(truth_msg.header.stamp)))
+        self.pub_target_image.publish(convert.spectrogram_image_msg(spectrogram_image(target), stamp_ns=truth_stamp))
+        if self.pub_pcm is not None:
+            self.pub_pcm(truth.target_monaural, truth_msg.sample_rate, truth_stamp)
         if step == 0:
             result = EpisodeResult(episode_id=episode_id, controller=self.controllers.get(episode_id, ""),
                                    task=info.task, sound_split=info.split, scene_id=info.scene_id,

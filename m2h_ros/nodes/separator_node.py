@@ -28,6 +28,7 @@ from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.models.threads import inference_threads  # noqa: E402
 from m2h_ros.node_configs import SeparatorNodeConfig  # noqa: E402
 from m2h_ros.ros import convert  # noqa: E402
+from m2h_ros.ros.introspection import raw_audio_publisher  # noqa: E402
 from m2h_ros.ros.params import declare_config  # noqa: E402
 from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events  # noqa: E402
 from m2h_ros.ros.spin import run_node  # noqa: E402
@@ -55,6 +56,7 @@ class SeparatorNode(Node):
         self.pub_monaural = publisher(Spectrogram, topics.MONAURAL)
         self.pub_refined = publisher(Spectrogram, topics.REFINED)
         self.pub_audio = publisher(BinauralAudio, topics.SEPARATED_AUDIO)
+        self.pub_pcm = raw_audio_publisher(self, topics.SEPARATED_AUDIO, STEP)  # where foxglove_msgs is installed
         self.pub_images = {topic: publisher(Image, topic) for topic in (
             topics.MIXTURE_IMAGE, topics.BINAURAL_IMAGE, topics.MONAURAL_IMAGE, topics.REFINED_IMAGE)}
         self.create_subscription(EpisodeInfo, topics.EPISODE, self.on_episode, LATCHED,
@@ -95,7 +97,9 @@ class SeparatorNode(Node):
         waveform = out.waveform(mixture[None], config=self.stft)
         self.pub_audio.publish(convert.audio_msg(waveform, sample_rate=self.stft.sample_rate, **tag))
         self.latencies.append(time.perf_counter() - started)
-        # Pictures to look at, after everything the controller waits for.
+        # Pictures to look at and audio to hear, after everything the controller waits for.
+        if self.pub_pcm is not None:
+            self.pub_pcm(waveform, self.stft.sample_rate, stamp)
         pictures = {topics.MIXTURE_IMAGE: np.abs(stft(mixture, config=self.stft)), topics.BINAURAL_IMAGE: out.binaural[0],
                     topics.MONAURAL_IMAGE: out.monaural[0], topics.REFINED_IMAGE: out.refined[0]}
         for topic, magnitude in pictures.items():

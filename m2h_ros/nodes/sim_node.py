@@ -33,7 +33,7 @@ from m2h_ros.errors import PipelineError
 from m2h_ros.node_configs import SimConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.graph import missing_consumers
-from m2h_ros.ros.introspection import optional_message_class
+from m2h_ros.ros.introspection import optional_message_class, raw_audio_publisher
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import LATCHED, LATEST, STEP, TF, publisher_events, subscription_events
 from m2h_ros.ros.spin import RunFinished, run_node
@@ -61,6 +61,7 @@ class SimNode(Node):
 
         self.pub_episode = publisher(EpisodeInfo, topics.EPISODE, LATCHED)
         self.pub_audio = publisher(BinauralAudio, topics.AUDIO)
+        self.pub_pcm = raw_audio_publisher(self, topics.AUDIO, STEP)  # where foxglove_msgs is installed
         self.pub_odom = publisher(Odometry, topics.ODOM)
         self.pub_pose = publisher(AgentPose, topics.AGENT_POSE)
         self.pub_truth = publisher(GroundTruth, topics.GROUND_TRUTH)
@@ -242,6 +243,8 @@ class SimNode(Node):
             self.publish_scene(stamp)
         # The mixture first: the separator (the longest stage) starts while the rest goes out.
         self.pub_audio.publish(convert.audio_msg(obs["audio"][0], sample_rate=self.sample_rate, **tag))
+        if self.pub_pcm is not None:
+            self.pub_pcm(obs["audio"][0], self.sample_rate, stamp)
         pose = obs["pose"][0]
         previous = None if episode_start else self.last_pose
         twist = frames.twist(previous[0], pose, (stamp - previous[1]) / 1e9) if previous else (0.0, 0.0, 0.0)

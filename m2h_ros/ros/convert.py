@@ -21,6 +21,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from m2h_ros.agents.base import EpisodeStart
+from m2h_ros.core.audio.pcm import pcm_int16
 from m2h_ros.core.audio.scoring import StepTruth
 from m2h_ros.core.audio.stft import StftConfig
 from m2h_ros.core.world.camera import CameraConfig
@@ -28,6 +29,7 @@ from m2h_ros.core.world.episodes import Episode
 from m2h_ros.core.world.frames import BASE, CAMERA, HEAD, MAP, ODOM, quaternion_yaw, yaw_rotation
 from m2h_ros.core.world.frames import OccupancyGrid as Grid
 from m2h_ros.errors import AudioError, PipelineError
+from m2h_ros.io.derived import PCM_GAIN
 
 MAP_FRAME, ODOM_FRAME, BASE_FRAME, HEAD_FRAME, CAMERA_FRAME = MAP, ODOM, BASE, HEAD, CAMERA
 
@@ -251,6 +253,16 @@ def source_markers(positions: np.ndarray, categories, *, height: float, stamp_ns
         label.text = f"{'target' if k == 0 else 'distractor'}: {category}"
         markers += [ball, label]
     return MarkerArray(markers=markers)
+
+
+def raw_audio_msg(raw_audio: type, samples: np.ndarray, *, sample_rate: int, stamp_ns: int):
+    """(channels, N) float samples -> foxglove_msgs/RawAudio (``raw_audio``, where installed), pcm-s16 at
+    the bags' gain (what the recorder writes where the package is missing)."""
+    samples = np.atleast_2d(np.asarray(samples, np.float32))
+    msg = raw_audio(format="pcm-s16", sample_rate=int(sample_rate), number_of_channels=samples.shape[0])
+    msg.timestamp = stamp_of(stamp_ns)
+    msg.data = array.array("B", pcm_int16(samples, gain=PCM_GAIN))
+    return msg
 
 
 def spectrogram_image_msg(picture: np.ndarray, *, stamp_ns: int) -> Image:

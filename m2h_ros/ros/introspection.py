@@ -9,6 +9,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
+from m2h_ros.io.derived import pcm_topic
+from m2h_ros.io.msg_defs import RAW_AUDIO
+from m2h_ros.ros.convert import raw_audio_msg
 from m2h_ros.ros.qos import RECORD
 
 
@@ -52,6 +55,17 @@ def optional_message_class(type_name: str) -> type | None:
         return message_class(type_name)
     except (ImportError, AttributeError):
         return None
+
+
+def raw_audio_publisher(node: Node, audio_topic: str, qos: QoSProfile):
+    """Where foxglove_msgs is installed, a function ``(samples, sample_rate, stamp_ns)`` that publishes
+    pcm-s16 RawAudio on ``<audio_topic>/pcm``; else None (the recorder writes the same track into the bag)."""
+    raw_audio = optional_message_class(RAW_AUDIO)
+    if raw_audio is None:
+        return None
+    publisher = node.create_publisher(raw_audio, pcm_topic(audio_topic), qos)
+    return lambda samples, sample_rate, stamp_ns: publisher.publish(
+        raw_audio_msg(raw_audio, samples, sample_rate=sample_rate, stamp_ns=stamp_ns))
 
 
 def adapted_qos(node: Node, topic: str) -> QoSProfile:
