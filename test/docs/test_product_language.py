@@ -1,0 +1,64 @@
+"""The product speaks of the software, not of how it was made: no work-period numbers, folder suffixes or
+internal issue numbers in any tracked file (code, docs, params, tests, result folders, the shipped
+checkpoints' stored metadata)."""
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from m2h_ros.paths import REPO_DIR
+
+HISTORY = re.compile(
+    r"\bsessions? \d"              # a work period by number
+    r"|_s\d\d\b|_session\d"        # a folder or run named by its work period
+    r"|\bthe VM of\b"              # a machine as a chapter of a history
+    r"|\bissues? #?\d+\b",         # an internal issue number (another project's issue names its repository)
+    re.IGNORECASE)
+OTHER_PROJECT = re.compile(r"[\w.-]+/[\w.-]+(#\d+|/issues/\d+)|github\.com", re.IGNORECASE)
+# Compressed or media files whose bytes cannot hold readable text.
+SKIP_SUFFIXES = {".png", ".jpg", ".jpeg", ".gif", ".mp4", ".wav", ".flac", ".npy", ".npz", ".mcap", ".gz", ".zip"}
+THIS_FILE = Path(__file__).resolve().relative_to(REPO_DIR).as_posix()
+
+
+def _tracked() -> list[str]:
+    out = subprocess.run(["git", "ls-files", "-z"], cwd=REPO_DIR, check=True, capture_output=True).stdout
+    return [p for p in out.decode().split("\0") if p and p != THIS_FILE and (REPO_DIR / p).is_file()]
+
+
+@pytest.fixture(scope="module")
+def files():
+    return _tracked()
+
+
+def history_hits(text: str) -> list[str]:
+    hits = []
+    for number, line in enumerate(text.splitlines(), 1):
+        for match in HISTORY.finditer(line):
+            if match.group(0).lower().startswith("issue") and OTHER_PROJECT.search(line):
+                continue
+            hits.append(f"{number}: {line.strip()[:160]}")
+    return hits
+
+
+def test_the_patterns_find_history_and_pass_the_product():
+    for diary in ("as measured in session 12", "runs/nav_fromq_s31/policy.pt", "switch_time_val_session10",
+                  "fixed for issue 9", "on the VM of that day"):
+        assert history_hits(diary), diary
+    for product in ("a session of the ROS graph", "_s10x", "pcm-s16", "rosbag2 issue ros2/rosbag2#1234",
+                    "SI-SDR 3.82 dB over 500 episodes"):
+        assert not history_hits(product), product
+
+
+def test_no_tracked_file_speaks_of_how_it_was_made(files):
+    found = {}
+    for path in files:
+        if Path(path).suffix.lower() in SKIP_SUFFIXES:
+            continue
+        # Checkpoints (.pt: zip, stored uncompressed) are read as bytes: their metadata is text inside.
+        text = (REPO_DIR / path).read_bytes().decode("latin-1")
+        hits = history_hits(text)
+        if hits:
+            found[path] = hits[:3]
+    assert not found, "work-period references:\n" + "\n".join(f"{p}: {h}" for p, hs in found.items() for h in hs)
