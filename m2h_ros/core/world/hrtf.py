@@ -283,7 +283,7 @@ def _sofa_directions(path: Path, sofa, count: int) -> np.ndarray:
     """(count, 3) unit vectors of a SOFA file's SourcePosition (spherical degrees or cartesian)."""
     positions = np.asarray(getattr(sofa, "SourcePosition", np.zeros((0, 3))), dtype=np.float64)
     kind = str(getattr(sofa, "SourcePosition_Type", "spherical")).lower()
-    if positions.ndim != 2 or positions.shape[1] != 3 or len(positions) not in (count,):
+    if positions.ndim != 2 or positions.shape[1] != 3 or len(positions) != count:
         raise HeadError(f"head file {path}: SourcePosition has shape {positions.shape}, expected ({count}, 3), "
                         f"one position per impulse response")
     if not np.isfinite(positions).all():
