@@ -211,9 +211,13 @@ def write_still(media: EpisodeMedia, out: Path, *, step: int, width: int = 640, 
 
 
 def ffmpeg_exe() -> str:
-    import imageio_ffmpeg  # noqa: PLC0415
+    """The ffmpeg binary imageio-ffmpeg ships (or the one IMAGEIO_FFMPEG_EXE names)."""
+    try:
+        import imageio_ffmpeg  # noqa: PLC0415
 
-    return imageio_ffmpeg.get_ffmpeg_exe()
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError) as exc:
+        raise VideoError(f"no ffmpeg: {exc} (scripts/setup.sh installs imageio-ffmpeg, which ships one)") from exc
 
 
 def make_video(media: EpisodeMedia, out: Path, *, width: int = 640, height: int = 360, fps: int = 4,
@@ -238,10 +242,15 @@ def make_video(media: EpisodeMedia, out: Path, *, width: int = 640, height: int 
                    "-pix_fmt", "yuv420p", "-c:a", "aac", "-b:a", f"{audio_kbps}k",
                    "-metadata:s:a:0", f"title={STREAM_TITLES[0]}", "-metadata:s:a:1", f"title={STREAM_TITLES[1]}",
                    "-disposition:a:0", "default", "-disposition:a:1", "0", "-movflags", "+faststart", str(out)]
-        encoder = subprocess.Popen(command, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            encoder = subprocess.Popen(command, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+        except OSError as exc:
+            raise VideoError(f"cannot run ffmpeg {command[0]}: {exc}") from exc
         try:
             for frame in render_frames(media, width=width, height=height):
                 encoder.stdin.write(frame.tobytes())
+        except BrokenPipeError:
+            pass  # ffmpeg stopped: its own message follows
         finally:
             _, err = encoder.communicate()
     if encoder.returncode != 0:

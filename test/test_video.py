@@ -4,6 +4,7 @@ and the bag's separated estimate."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -139,3 +140,12 @@ def test_an_unknown_episode_is_named(video):
                             capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 2
     assert "make_video: error: episode 7 is not in" in result.stderr and "(2 episodes)" in result.stderr
+
+
+def test_a_missing_encoder_is_named(video, tmp_path):
+    run, _ = video
+    result = subprocess.run([sys.executable, str(ROOT / "scripts" / "make_video.py"), str(run), "--out",
+                             str(tmp_path / "x.mp4")], capture_output=True, text=True, cwd=ROOT,
+                            env={**os.environ, "IMAGEIO_FFMPEG_EXE": str(tmp_path / "no_ffmpeg")})
+    assert result.returncode == 2
+    assert "make_video: error: cannot run ffmpeg" in result.stderr and "no_ffmpeg" in result.stderr
