@@ -6,7 +6,8 @@ rosbags' reader needs ``metadata.yaml`` and the MCAP summary; a recorder killed 
 reads every complete chunk of such a bag and stops at the first incomplete record. What it finds
 wrong is collected in :attr:`BagStream.problems` (each a :class:`BagError` naming the file, byte offset
 and what is lost) and reading goes on where the framing allows: a chunk whose CRC or compression is
-bad is skipped, an unknown type is reported per topic. Only errors that leave nothing to read (no
+bad is skipped (named by its number, byte range and the topics its message indexes list; a closed file's
+summary still declares the topics it held), an unknown type is reported per topic. Only errors that leave nothing to read (no
 such path, not MCAP, not the ``ros2`` profile, a storage other than MCAP) raise.
 
 Message definitions are checked against this checkout's ``m2h_msgs`` (and Jazzy's standard types) by
@@ -39,6 +40,7 @@ RECORD_HEAD = struct.Struct("<BQ")
 MESSAGE_HEAD = struct.Struct("<HIQQ")
 INDEX_HEAD = struct.Struct("<HI")  # message index: channel id, bytes of (log time, offset) pairs
 CHUNK_HEAD = struct.Struct("<QQQI")
+FOOTER = struct.Struct("<QQI")  # summary start, summary offset start, summary CRC
 
 
 @dataclass(frozen=True)
@@ -213,6 +215,9 @@ class BagStream:
         self.stats.files += 1
         with path.open("rb") as stream:
             self._check_start(stream, path)
+            data_start = stream.tell()
+            self._summary_declarations(state, stream, size)
+            stream.seek(data_start)
             while True:
                 offset = stream.tell()
                 head = stream.read(RECORD_HEAD.size)
@@ -262,6 +267,34 @@ class BagStream:
         for channel_id, count in state.undeclared.items():
             self._problem(f"{path}: {count} message(s) on channel {channel_id}, whose declaration was lost, skipped")
         return closed
+
+    def _summary_declarations(self, state: _FileState, stream: BinaryIO, size: int) -> None:
+        """Registers the schemas and channels a closed file's summary section repeats, so messages whose
+        declaration sat in a damaged chunk still decode. A file without a readable footer (a killed
+        writer) has none: its data section's declarations are all there is."""
+        tail_size = RECORD_HEAD.size + FOOTER.size + len(MAGIC)
+        if size < len(MAGIC) + tail_size:
+            return
+        stream.seek(size - tail_size)
+        tail = stream.read(tail_size)
+        if tail[-len(MAGIC):] != MAGIC or tail[0] != OP_FOOTER:
+            return
+        summary_start, offsets_start, _ = FOOTER.unpack_from(tail, RECORD_HEAD.size)
+        end = offsets_start or size - tail_size
+        if not 0 < summary_start < end <= size:
+            return
+        stream.seek(summary_start)
+        summary = memoryview(stream.read(end - summary_start))
+        pos = 0
+        try:
+            while pos + RECORD_HEAD.size <= len(summary):
+                op, length = RECORD_HEAD.unpack_from(summary, pos)
+                pos += RECORD_HEAD.size
+                if op in (OP_SCHEMA, OP_CHANNEL):
+                    self._record(state, op, summary[pos:pos + length], None)
+                pos += length
+        except (struct.error, ValueError, UnicodeDecodeError):
+            pass  # a damaged summary: the data section's own declarations remain
 
     def _check_start(self, stream: BinaryIO, path: Path) -> None:
         if stream.read(len(MAGIC)) != MAGIC:

@@ -364,3 +364,20 @@ def test_workers_replay_bags_in_processes_with_the_same_output(near_bag, tmp_pat
     assert "nope" in written[1][1] and written[1][0].count(" step(s) scored") == 3
     assert m2h_eval([str(bag), "--out", str(tmp_path / "out3"), "--workers", "0"]) == 2
     shutil.rmtree(killed)
+
+
+def test_a_damaged_first_chunk_costs_only_its_own_messages(tmp_path):
+    """The first chunk declares the topics; the closed file's summary repeats the declarations, so the
+    episodes after the damage are still read and scored."""
+    bag = tmp_path / "bag"
+    live = write_synthetic_run(bag, NEAR)
+    mcap_file = next(bag.glob("*.mcap"))
+    data = bytearray(mcap_file.read_bytes())
+    first, second = chunk_offsets(data)[:2]
+    data[(first + second) // 2] ^= 0xFF
+    mcap_file.write_bytes(bytes(data))
+    replay = replay_bag(bag)
+    assert any(f"corrupt chunk 1 (bytes {first}-" in str(p) for p in replay.problems)
+    assert not any("declaration was lost" in str(p) for p in replay.problems)
+    assert live[-1].episode_id in {r.episode_id for r in replay.results}
+    same_results([r for r in replay.results if r.episode_id == live[-1].episode_id], live[-1:])
