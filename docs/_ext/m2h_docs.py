@@ -11,8 +11,9 @@ drift from it, and a role that checks repository paths.
 * ``{m2h-help} m2h_ros.replay_cli:build_parser m2h-eval``: a command's ``--help``, from its parser.
 * ``{repo}`path``: a repository path in code style; a path that does not exist is a build warning
   (an error under ``-W``).
-* Generated tables under ``results/`` that open without a heading (``paired.md``) get their path as
-  the page title, so the navigation can list them.
+* ``results/``: the results index gets a hidden toctree of every folder's README (so they nest under
+  it in the navigation); the tables the scripts wrote are pages linked from those READMEs, marked as
+  orphans, and one that opens without a heading (``paired.md``) gets its path as its title.
 """
 
 from __future__ import annotations
@@ -191,14 +192,20 @@ def repo_role(name, rawtext, text, lineno, inliner, options=None, content=None):
     return [nodes.literal(rawtext, path)], []
 
 
-def title_results_tables(app, docname: str, source: list[str]) -> None:
-    """A results table written by a script without a heading gets its path as its title."""
-    if docname.startswith("results/") and not source[0].lstrip().startswith("#"):
-        source[0] = f"# {docname.removeprefix('results/')}\n\n" + source[0]
+RESULTS_INDEX_TOCTREE = "\n\n```{toctree}\n:hidden:\n:glob:\n\n*/README\n*/*/README\n```\n"
+
+
+def results_pages(app, docname: str, source: list[str]) -> None:
+    """docs/results/ as pages: the index's READMEs nest under it; the generated tables are orphans."""
+    if docname == "results/README":
+        source[0] += RESULTS_INDEX_TOCTREE
+    elif docname.startswith("results/") and not docname.endswith("/README"):
+        heading = "" if source[0].lstrip().startswith("#") else f"# {docname.removeprefix('results/')}\n\n"
+        source[0] = "---\norphan: true\n---\n" + heading + source[0]
 
 
 def setup(app):
-    app.connect("source-read", title_results_tables)
+    app.connect("source-read", results_pages)
     app.add_directive("m2h-config", ConfigTable)
     app.add_directive("m2h-topics", TopicTable)
     app.add_directive("m2h-qos", QosTable)
