@@ -86,6 +86,8 @@ class ControllerConfig(Config):
     checkpoint: str = setting("", "checkpoint of a learned policy or of gan_et_al's sound locator; empty: "
                               "the shipped one")
     seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
+    camera: bool = setting(True, "camera images come with each step (the simulator's, or a robot's RGB-D); "
+                           "false: a controller that reads them is refused at start")
 
 
 @dataclass(frozen=True)
@@ -142,8 +144,28 @@ class BaseNodeConfig(MotionLimits):
     frame_id: str = setting("base_link", "frame_id of the TwistStamped commands")
 
 
+@dataclass(frozen=True)
+class EpisodeDriverConfig(Config):
+    target_class: str = setting("speech", "class of the target the robot is to hear", choices=("speech", "music"))
+    task: str = setting("near_target", "what the controller is told the episode is: near_target (it moves "
+                        "until the last step) or far_target (it may Stop)", choices=TASKS)
+    steps: int = setting(20, "actions in the episode (observations: steps + 1)", min=1, max=100000)
+    episode_id: str = setting("robot", "episode id of the published steps")
+    seed: int = setting(0, "seed the controller is given (stochastic controllers)", min=0)
+    camera: bool = setting(True, "pass the robot's RGB and depth images with each step")
+    settle_s: float = setting(0.0, "seconds after a move ends before the next step's frame may start",
+                              min=0.0, max=60.0)
+    step_timeout_s: float = setting(120.0, "seconds to wait for a step's motion_result before the node "
+                                    "stops, naming what did not answer", min=0.1, max=3600.0)
+
+
 # The pipeline's nodes and their config dataclasses, in the order the pipeline starts them: the live
 # view and the recorder first (they hear every topic from its first message), the simulator last (it
 # waits for the others).
 NODE_CONFIGS = {"live_view_node": LiveViewConfig, "recorder_node": RecorderConfig, "evaluator_node": EvaluatorConfig,
                 "controller_node": ControllerConfig, "separator_node": SeparatorNodeConfig, "sim_node": SimConfig}
+# Robot mode (no simulator, no evaluator): the microphones, the base and the episode driver, which
+# ends the run.
+ROBOT_CONFIGS = {"recorder_node": RecorderConfig, "capture_node": CaptureNodeConfig, "base_node": BaseNodeConfig,
+                 "controller_node": ControllerConfig, "separator_node": SeparatorNodeConfig,
+                 "episode_driver": EpisodeDriverConfig}

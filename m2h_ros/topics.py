@@ -17,6 +17,11 @@ SEPARATED_AUDIO = "separator/audio"  # m2h_msgs/BinauralAudio, 1 channel: refine
 COMMAND = "cmd"  # m2h_msgs/MotionCommand (controller)
 CMD_VEL = "cmd_vel"  # geometry_msgs/TwistStamped (or Twist): the velocity a robot base is sent (base)
 MOTION_RESULT = "motion_result"  # m2h_msgs/MotionResult: how the base carried out a command (base)
+# Robot mode: the microphones' continuous frames, and what the episode driver stamps with each step.
+MIC_AUDIO = "mic/audio"  # m2h_msgs/BinauralAudio: every captured frame (capture_node, remapped)
+STEP_ODOM = "step/odom"  # nav_msgs/Odometry: the robot's odometry at a step's frame (episode driver)
+STEP_RGB = "step/camera/rgb/image_raw"  # sensor_msgs/Image: the robot's RGB at a step (episode driver)
+STEP_DEPTH = "step/camera/depth/image_raw"  # sensor_msgs/Image: its depth at a step (episode driver)
 STEP_SCORE = "scores/step"  # m2h_msgs/StepScore (evaluator)
 EPISODE_SCORE = "scores/episode"  # m2h_msgs/EpisodeScore (evaluator)
 # Seeing and hearing a run (rviz, Foxglove); TF goes on the standard /tf and /tf_static.
@@ -28,3 +33,7 @@ BINAURAL_IMAGE = "spectrogram/separated_binaural"  # the same for f^B's separate
 MONAURAL_IMAGE = "spectrogram/monaural"  # f^M's monaural estimate (separator)
 REFINED_IMAGE = "spectrogram/refined"  # f^R's refined estimate (separator)
 TARGET_IMAGE = "/ground_truth/spectrogram/target"  # the target's dry clip (evaluator)
+# Robot mode's remappings, node -> (topic, to): the microphones' frames go to the episode driver, which
+# republishes the chosen ones as the steps; the controller reads the step-stamped odometry and images.
+ROBOT_REMAPS = {"capture_node": ((AUDIO, MIC_AUDIO),),
+                "controller_node": ((ODOM, STEP_ODOM), (RGB, STEP_RGB), (DEPTH, STEP_DEPTH))}

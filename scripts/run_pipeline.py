@@ -4,6 +4,10 @@
     python scripts/run_pipeline.py --episodes 3 --controller doa --out runs/demo
     python scripts/run_pipeline.py --set sim_node.mic_noise=0.1 --set controller_node.seed=3
     python scripts/run_pipeline.py --live-view      # and open ws://localhost:8765 in Foxglove
+    python scripts/run_pipeline.py --robot --target-class speech --steps 20 --device ReSpeaker
+
+--robot runs the pipeline on a robot instead (docs/how-to/robot-mode.md): capture_node, episode_driver,
+separator, controller, base_node and recorder; no simulator, no evaluator; the episode driver ends it.
 
 Builds the data the episodes need first (sound library, episode file; RIR banks of the sources are
 built by the simulator on first use), starts every node with its params file from params/ (plus the
@@ -29,12 +33,14 @@ from pathlib import Path
 import yaml
 
 from m2h_ros.errors import M2HError
-from m2h_ros.node_configs import NODE_CONFIGS
+from m2h_ros.node_configs import NODE_CONFIGS, ROBOT_CONFIGS
+from m2h_ros.topics import ROBOT_REMAPS
 
 ROOT = Path(__file__).resolve().parents[1]
 # Start order: the live view and the recorder first, so they hear every topic from its first message.
 NODES = tuple(NODE_CONFIGS)
-STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "recorder_node", "live_view_node")
+STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "base_node", "capture_node", "recorder_node",
+              "live_view_node")
 LIVE_VIEW_PORT = 8765  # Foxglove's default
 STOP_TIMEOUT_S = 20.0
 
@@ -58,33 +64,55 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--live-view", type=int, nargs="?", const=LIVE_VIEW_PORT, default=None, metavar="PORT",
                         help=f"also serve the run to Foxglove on ws://127.0.0.1:PORT (default {LIVE_VIEW_PORT}); "
                              "other live_view_node settings with --set")
+    robot = parser.add_argument_group("robot mode")
+    robot.add_argument("--robot", action="store_true", help="run on a robot: microphones, base, no simulator")
+    robot.add_argument("--target-class", default="speech", choices=("speech", "music"))
+    robot.add_argument("--steps", type=int, default=20, help="actions in the robot's episode (default 20)")
+    robot.add_argument("--device", default=None, help="capture_node device (default: its params file)")
+    robot.add_argument("--no-camera", action="store_true",
+                       help="the robot passes no RGB-D: only controllers that read no images run")
     return parser.parse_args(argv)
+
+
+def robot_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
+    """Robot mode's parameter values per node (on top of each node's params file)."""
+    params: dict[str, dict[str, object]] = {node: {} for node in ROBOT_CONFIGS}
+    camera = not args.no_camera
+    params["episode_driver"].update(target_class=args.target_class, steps=args.steps, task=args.task, camera=camera)
+    params["separator_node"]["target_class"] = args.target_class
+    params["controller_node"]["camera"] = camera
+    if args.device is not None:
+        params["capture_node"]["device"] = args.device
+    return params
 
 
 def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     """Per node, the parameter values this run sets (on top of the node's params file)."""
     record = not args.no_record
-    expect = ["separator_node", "controller_node", "evaluator_node"] + (["recorder_node"] if record else [])
-    params: dict[str, dict[str, object]] = {node: {} for node in NODES}
-    params["sim_node"].update(task=args.task, sound_split=args.sound_split, num_episodes=args.episodes,
-                              first_episode=args.first, mode=args.mode, step_timeout_s=args.step_timeout,
-                              expect_nodes=expect)
-    if args.rate is not None:
-        params["sim_node"]["rate_hz"] = args.rate
+    if args.robot:
+        params = robot_overrides(args)
+    else:
+        expect = ["separator_node", "controller_node", "evaluator_node"] + (["recorder_node"] if record else [])
+        params = {node: {} for node in NODES}
+        params["sim_node"].update(task=args.task, sound_split=args.sound_split, num_episodes=args.episodes,
+                                  first_episode=args.first, mode=args.mode, step_timeout_s=args.step_timeout,
+                                  expect_nodes=expect)
+        if args.rate is not None:
+            params["sim_node"]["rate_hz"] = args.rate
+        params["evaluator_node"]["output_dir"] = str(args.out / "scores")
     if args.controller:
         params["controller_node"]["policy"] = args.controller
     if args.separator_checkpoint:
         params["separator_node"]["checkpoint"] = str(Path(args.separator_checkpoint).resolve())
-    params["evaluator_node"]["output_dir"] = str(args.out / "scores")
     params["recorder_node"]["output"] = str(args.out / "bag")
     if args.live_view is not None:
-        params["live_view_node"]["port"] = args.live_view
+        params["live_view_node"] = {"port": args.live_view}
     for item in args.set:
         node, sep, assignment = item.partition(".")
         name, eq, value = assignment.partition("=")
         if not sep or not eq or node not in params:
             raise SystemExit(f"run_pipeline: --set {item!r} must be NODE.PARAM=VALUE with NODE one of "
-                             f"{', '.join(NODES)}")
+                             f"{', '.join(params)}")
         params[node][name] = yaml.safe_load(value)
     return params
 
@@ -102,8 +130,9 @@ def node_configs(params: dict[str, dict[str, object]]) -> dict:
     configs = {}
     for node, values in params.items():
         path = ROOT / "params" / f"{node}.yaml"
-        base = dataclasses.asdict(NODE_CONFIGS[node].from_yaml(path, node))
-        configs[node] = NODE_CONFIGS[node].from_dict({**base, **values}, source=f"{path.name} with this run's values")
+        config_type = {**NODE_CONFIGS, **ROBOT_CONFIGS}[node]
+        base = dataclasses.asdict(config_type.from_yaml(path, node))
+        configs[node] = config_type.from_dict({**base, **values}, source=f"{path.name} with this run's values")
     return configs
 
 
@@ -149,8 +178,12 @@ def main(argv=None) -> int:
     if (args.out / "bag").exists():
         raise SystemExit(f"run_pipeline: {args.out / 'bag'} exists; choose another --out")
     params = overrides(args)
+    nodes = tuple(ROBOT_CONFIGS if args.robot else NODES)
+    finisher = "episode_driver" if args.robot else "sim_node"  # its exit ends the run
     try:
-        prepare_data(node_configs(params)["sim_node"])
+        configs = node_configs(params)
+        if not args.robot:
+            prepare_data(configs["sim_node"])
     except M2HError as exc:
         raise SystemExit(f"run_pipeline: {exc}") from exc
     (args.out / "logs").mkdir(parents=True, exist_ok=True)
@@ -169,33 +202,35 @@ def main(argv=None) -> int:
     started = time.monotonic()
     interrupted = False
     try:
-        for node in NODES:
+        for node in nodes:
             if (node == "recorder_node" and args.no_record) or (node == "live_view_node" and args.live_view is None):
                 continue
             logs[node] = args.out / "logs" / f"{node}.log"
             command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
             for name, value in params[node].items():
                 command += ["-p", f"{name}:={ros_value(value)}"]
+            for topic, to in ROBOT_REMAPS.get(node, ()) if args.robot else ():
+                command += ["-r", f"{topic}:={to}"]
             procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,
                                            env=env, start_new_session=True, cwd=ROOT)
-        while procs["sim_node"].poll() is None:
-            early = [n for n, p in procs.items() if n != "sim_node" and p.poll() is not None]
+        while procs[finisher].poll() is None:
+            early = [n for n, p in procs.items() if n != finisher and p.poll() is not None]
             if early:  # the run cannot go on: stop now rather than wait out the sim's step timeout
                 print(f"[run] {', '.join(early)} exited during the run: stopping every node", flush=True)
-                stop(procs["sim_node"])
+                stop(procs[finisher])
                 break
             time.sleep(0.2)
     except KeyboardInterrupt:
         interrupted = True
         print("[run] interrupted: stopping every node", flush=True)
-        if "sim_node" in procs:
-            stop(procs["sim_node"])
+        if finisher in procs:
+            stop(procs[finisher])
     finally:
         for node in STOP_ORDER:
             if node in procs:
                 stop(procs[node])
-        if "sim_node" in procs:
-            stop(procs["sim_node"])
+        if finisher in procs:
+            stop(procs[finisher])
     elapsed = time.monotonic() - started
     failed = {n: p.returncode for n, p in procs.items() if p.returncode != 0}
     print(f"[run] finished in {elapsed:.1f} s", flush=True)

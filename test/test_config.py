@@ -10,10 +10,7 @@ from m2h_ros import node_configs
 from m2h_ros.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
-NODE_CONFIGS = {"sim_node": node_configs.SimConfig, "separator_node": node_configs.SeparatorNodeConfig,
-                "controller_node": node_configs.ControllerConfig,
-                "evaluator_node": node_configs.EvaluatorConfig, "recorder_node": node_configs.RecorderConfig,
-                "live_view_node": node_configs.LiveViewConfig, "capture_node": node_configs.CaptureNodeConfig}
+NODE_CONFIGS = {**node_configs.NODE_CONFIGS, **node_configs.ROBOT_CONFIGS}  # every node with a params file
 
 
 @pytest.mark.parametrize("node", sorted(NODE_CONFIGS))

@@ -20,11 +20,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from m2h_ros.node_configs import NODE_CONFIGS, PIPELINE_NODES
+from m2h_ros import topics
+from m2h_ros.node_configs import NODE_CONFIGS, PIPELINE_NODES, ROBOT_CONFIGS
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "launch" / "pipeline.launch.py"
-CONFIGS = NODE_CONFIGS
+ROBOT_LAUNCH = ROOT / "launch" / "robot.launch.py"
+CONFIGS = {**NODE_CONFIGS, **ROBOT_CONFIGS}
 STOOD_IN = ("launch", "launch.actions", "launch.conditions", "launch.event_handlers", "launch.events",
             "launch.substitutions", "launch_ros", "launch_ros.actions", "launch_ros.substitutions",
             "launch_ros.parameter_descriptions")
@@ -81,8 +83,7 @@ def argument(entity: Entity, position: int, name: str):
     return entity.args[position] if len(entity.args) > position else entity.kwargs[name]
 
 
-@pytest.fixture
-def launch_module(monkeypatch) -> types.ModuleType:
+def load(monkeypatch, path: Path) -> types.ModuleType:
     monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
     for name in STOOD_IN:
         monkeypatch.setitem(sys.modules, name, stand_in(name))
@@ -90,10 +91,15 @@ def launch_module(monkeypatch) -> types.ModuleType:
     index = types.ModuleType("ament_index_python.packages")
     index.get_package_share_directory = {"m2h_ros": str(ROOT)}.__getitem__  # the source tree's params/
     monkeypatch.setitem(sys.modules, "ament_index_python.packages", index)
-    spec = importlib.util.spec_from_file_location("pipeline_launch", LAUNCH)
+    spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+@pytest.fixture
+def launch_module(monkeypatch) -> types.ModuleType:
+    return load(monkeypatch, LAUNCH)
 
 
 @pytest.fixture
@@ -261,3 +267,46 @@ def test_the_live_view_is_opt_in(description, defaults):
     assert yaml.safe_load(perform(argument(condition, 0, "predicate_expression"), defaults)) is False
     for name, node in nodes(description).items():
         assert name == "live_view_node" or node.kwargs.get("condition") is None, name
+
+
+@pytest.fixture
+def robot(monkeypatch) -> Entity:
+    return load(monkeypatch, ROBOT_LAUNCH).generate_launch_description()
+
+
+def test_robot_mode_starts_the_robot_nodes_and_no_simulator(robot):
+    started = nodes(robot)
+    assert list(started) == list(ROBOT_CONFIGS)
+    assert "sim_node" not in started and "evaluator_node" not in started
+    for name, node in started.items():
+        files = [p for p in node.kwargs["parameters"] if isinstance(p, str | Path)]
+        assert [os.path.normpath(p) for p in files] == [str(ROOT / "params" / f"{name}.yaml")], name
+    remaps = {name: dict(node.kwargs["remappings"]) for name, node in started.items()}
+    assert remaps["capture_node"] == {topics.AUDIO: topics.MIC_AUDIO}  # frames to the episode driver
+    assert remaps["controller_node"][topics.ODOM] == topics.STEP_ODOM
+    assert remaps["base_node"] == {}  # the robot's own odom and cmd_vel
+
+
+def test_robot_mode_arguments_reach_every_node_that_needs_them(robot):
+    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
+    assert {"target_class", "steps", "controller", "camera", "device", "output", "overwrite"} <= set(defaults)
+    started = nodes(robot)
+    driver = resolved_config(started["episode_driver"], defaults)
+    assert (driver.target_class, driver.steps, driver.camera) == ("speech", 20, True)
+    assert resolved_config(started["separator_node"], defaults).target_class == driver.target_class
+    controller = resolved_config(started["controller_node"], defaults)
+    assert controller.policy == "move2hear" and controller.camera is True  # the shipped policy, with RGB-D
+    defaults["camera"], defaults["target_class"] = "false", "music"
+    assert resolved_config(started["controller_node"], defaults).camera is False
+    assert resolved_config(started["separator_node"], defaults).target_class == "music"
+
+
+def test_robot_mode_ends_with_the_episode_driver_and_on_any_other_exit(robot):
+    node_exited = sys.modules["m2h_ros.ros.launching"].NodeExited
+    handlers = exit_handlers(robot)
+    assert set(handlers) == set(ROBOT_CONFIGS)
+    running = types.SimpleNamespace(is_shutdown=False)
+    (shutdown,) = handlers["episode_driver"](types.SimpleNamespace(returncode=0), running)
+    assert type(shutdown.kwargs["event"]).__name__ == "Shutdown"
+    with pytest.raises(node_exited, match="^capture_node exited with code 2"):
+        handlers["capture_node"](types.SimpleNamespace(returncode=2), running)

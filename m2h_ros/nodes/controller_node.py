@@ -20,9 +20,10 @@ from sensor_msgs.msg import Image  # noqa: E402
 
 from m2h_ros import topics  # noqa: E402
 from m2h_ros.agents.base import ControllerObservation, SingleEpisode  # noqa: E402
-from m2h_ros.agents.registry import make_controller  # noqa: E402
+from m2h_ros.agents.registry import TRAINING_FREE, make_controller  # noqa: E402
 from m2h_ros.core.audio.stft import DEFAULT_STFT  # noqa: E402
 from m2h_ros.core.world.episodes import STOP  # noqa: E402
+from m2h_ros.errors import ConfigError  # noqa: E402
 from m2h_ros.node_configs import ControllerConfig  # noqa: E402
 from m2h_ros.ros import convert  # noqa: E402
 from m2h_ros.ros.params import declare_config  # noqa: E402
@@ -40,6 +41,10 @@ class ControllerNode(Node):
         cfg = self.config
         self.controller = SingleEpisode(make_controller(cfg.policy, 1, seed=cfg.seed, checkpoint=cfg.checkpoint))
         camera, separator = self.controller.controller.uses_camera, self.controller.controller.uses_separator
+        if camera and not cfg.camera:
+            raise ConfigError(f"controller {cfg.policy!r} reads camera images and camera is false: without a camera "
+                              f"only controllers that read none run (the training-free baselines: "
+                              f"{', '.join(TRAINING_FREE)})")
         parts = ({"audio", "odom"} | ({"binaural", "monaural", "refined"} if separator else set())
                  | ({"rgb", "depth"} if camera else set()))
         self.gate = EpisodeGate(self.on_step)  # steps wait for their episode's info

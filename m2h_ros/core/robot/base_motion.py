@@ -42,8 +42,8 @@ class MotionLimits(Config):
 
     step_m: float = setting(1.0, "length of one forward move (the navigation grid's cell: 1 m)", min=0.01, max=10.0)
     turn_deg: float = setting(90.0, "angle of one turn (the grid's: 90 degrees)", min=1.0, max=180.0)
-    max_linear_speed: float = setting(0.3, "m/s", min=0.01, max=5.0)
-    max_angular_speed: float = setting(1.0, "rad/s", min=0.01, max=10.0)
+    max_linear_speed: float = setting(0.3, "highest forward speed, m/s", min=0.01, max=5.0)
+    max_angular_speed: float = setting(1.0, "highest turn rate, rad/s", min=0.01, max=10.0)
     max_linear_accel: float = setting(0.5, "m/s^2, speeding up and braking", min=0.01, max=20.0)
     max_angular_accel: float = setting(2.0, "rad/s^2, speeding up and braking", min=0.01, max=50.0)
     position_tolerance: float = setting(0.01, "a forward move is done within this many metres of its goal "

@@ -1,0 +1,56 @@
+"""ros2 launch m2h_ros robot.launch.py [target_class:=speech] [steps:=20] [controller:=move2hear] [device:=NAME] ...
+
+Robot mode: the pipeline on a robot, without the simulator and the evaluator. capture_node records
+the robot's microphones (device:=, channels:=), episode_driver turns the stream into steps (a step's
+frame is captured after the base finished the step before), separator_node and controller_node work
+as in simulation, base_node carries each command out on the base (odom in, cmd_vel out), and the
+recorder writes the run to a fresh runs/<date-time>/bag. The shipped Move2Hear policies read the
+camera: camera:=true (default) passes the robot's RGB-D images (camera/rgb/image_raw and
+camera/depth/image_raw, 32FC1 metres, at the policy's 128 x 128); camera:=false runs only controllers
+that read no images (the training-free baselines) and refuses the others at start. The launch ends
+when the episode's last step is out (exit 0) or when any node exits (exit 1, naming it).
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+from m2h_ros import topics
+from m2h_ros.node_configs import ROBOT_CONFIGS
+from m2h_ros.ros.launching import Argument, dds_profile, declare, exit_handler, parameters, run_directory
+
+NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
+ARGUMENTS = (
+    Argument("target_class", "episode_driver", "target_class"),
+    Argument("steps", "episode_driver", "steps"),
+    Argument("task", "episode_driver", "task"),
+    Argument("camera", "episode_driver", "camera"),
+    Argument("controller", "controller_node", "policy"),
+    Argument("controller_checkpoint", "controller_node", "checkpoint"),
+    Argument("separator_checkpoint", "separator_node", "checkpoint"),
+    Argument("device", "capture_node", "device"),
+    Argument("output", "recorder_node", "output", default=run_directory(),
+             description="run directory: the bag in OUTPUT/bag (default: a fresh runs/<date-time> per launch)"),
+    Argument("overwrite", "recorder_node", "overwrite",
+             description="replace a bag already in the run directory (else the recorder stops, naming it)"),
+)
+
+
+def generate_launch_description():
+    share = get_package_share_directory("m2h_ros")
+    params = {name: os.path.join(share, "params", f"{name}.yaml") for name in NODES}
+    configs = {name: config.from_yaml(params[name], name) for name, config in NODES.items()}
+    overrides = parameters(ARGUMENTS, configs)
+    overrides["recorder_node"]["output"] = [LaunchConfiguration("output"), "/bag"]
+    # One camera and one target class for every node that needs them.
+    overrides["controller_node"]["camera"] = overrides["episode_driver"]["camera"]
+    overrides["separator_node"] = {**overrides.get("separator_node", {}),
+                                   "target_class": overrides["episode_driver"]["target_class"]}
+    nodes = {name: Node(package="m2h_ros", executable=name, name=name, output="screen",
+                        parameters=[params[name], overrides.get(name, {})], remappings=list(topics.ROBOT_REMAPS.get(name, ())))
+             for name in NODES}
+    handlers = [exit_handler(action, name, finishes_run=name == "episode_driver") for name, action in nodes.items()]
+    return LaunchDescription([*declare(ARGUMENTS, configs), *dds_profile(share), *nodes.values(), *handlers])

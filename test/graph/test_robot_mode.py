@@ -1,0 +1,65 @@
+"""Robot mode end to end (scripts/run_pipeline.py --robot): a virtual microphone through the real ALSA
+stack, capture_node, the episode driver, the separator, the shipped Move2Hear controller with a test
+camera's RGB-D, base_node on the test-only kinematic base, and the recorder; no simulator, no
+evaluator. Without a camera, a controller that reads images is refused naming why."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pipeline_helpers import ROOT, bag_messages
+
+from m2h_ros.io.virtual_mic import virtual_mic
+
+pytestmark = pytest.mark.graph
+RATE = 48000
+HERE = Path(__file__).parent
+STEPS = 2
+
+
+def robot_run(tmp_path, *args: str, timeout: float = 300):
+    rng = np.random.default_rng(3)
+    t = np.arange(RATE * 120) / RATE  # longer than the run: the microphone never falls silent
+    ears = np.stack([np.sin(2 * np.pi * 220 * t) * (1 + 0.5 * np.sin(2 * np.pi * 3 * t)),
+                     np.sin(2 * np.pi * 330 * t)], axis=1) * 0.2 + 0.05 * rng.standard_normal((t.size, 2))
+    mic = virtual_mic(tmp_path / "mic", ears.astype(np.float32), RATE)
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE", **mic.env()}  # no data: robot mode simulates nothing
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--robot", "--out",
+                           str(tmp_path / "run"), "--steps", str(STEPS), "--device", mic.name,
+                           "--set", f"capture_node.sample_rate={RATE}", *args],
+                          capture_output=True, text=True, timeout=timeout, env=env, cwd=ROOT)
+
+
+def test_the_robot_graph_runs_an_episode_with_move2hear_on_the_test_base(processes, tmp_path):
+    processes.start([sys.executable, str(HERE / "kinematic_base.py")])
+    processes.start([sys.executable, str(HERE / "camera_publisher.py")])
+    result = robot_run(tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    for node in ("capture_node", "episode_driver", "separator_node", "controller_node", "base_node", "recorder_node"):
+        assert f"[run]   {node:16s} exit 0" in result.stdout
+    messages = bag_messages(tmp_path / "run" / "bag")
+    assert "/ground_truth/target" not in messages and "/scores/step" not in messages  # no sim, no evaluator
+    steps = [(m.episode_id, m.step) for m in messages["/audio"]]
+    assert steps == [("robot", k) for k in range(STEPS + 1)]
+    commands = messages["/cmd"]
+    assert [c.step for c in commands] == list(range(STEPS)) and {c.controller for c in commands} == {"move2hear"}
+    results = messages["/motion_result"]
+    assert [(r.step, r.status) for r in results] == [(k, 0) for k in range(STEPS)]  # DONE
+    assert [r.action for r in results] == [c.action for c in commands]
+    # Each step after the first is a frame captured wholly after the move before it ended.
+    stamp = lambda m: m.header.stamp.sec * 10**9 + m.header.stamp.nanosec  # noqa: E731
+    for k in range(1, STEPS + 1):
+        assert stamp(messages["/audio"][k]) >= stamp(results[k - 1])
+    assert len(messages["/mic/audio"]) > STEPS + 1  # the stream went on between steps
+    assert len(messages["/separator/audio"]) == STEPS + 1
+    assert [m.header.stamp for m in messages["/step/odom"]] == [m.header.stamp for m in messages["/audio"]]
+
+
+def test_without_a_camera_a_controller_that_reads_images_is_refused(tmp_path):
+    result = robot_run(tmp_path, "--no-camera", timeout=180)
+    assert result.returncode == 1
+    assert "controller_node exited during the run" in result.stdout
+    assert "controller 'move2hear' reads camera images and camera is false" in result.stdout
