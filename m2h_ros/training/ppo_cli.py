@@ -17,7 +17,9 @@ from pathlib import Path
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
+from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
 from m2h_ros.core.world.episodes import TASKS, EpisodeConfig  # noqa: E402
+from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.errors import reports_errors  # noqa: E402
 from m2h_ros.models.device import DEVICES  # noqa: E402
 from m2h_ros.models.policy import PRESET_NAMES  # noqa: E402
@@ -50,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="training scenes: train (12), train24 (24) or train48 (48); each holds the one before")
     parser.add_argument("--separator", default="", help="separator checkpoint (default: the shipped one)")
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
+    parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,
                         help="passes of f^R's L1 per update (quality)")
     parser.add_argument("--frozen-refiner", action=argparse.BooleanOptionalAction, default=False,
@@ -94,7 +97,8 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
     episodes = EpisodeConfig(task=task, scene_split=args.scene_split, sound_split="heard", count=args.episodes, seed=args.seed,
                              max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
     return PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
-                     env=KINDS[args.kind].env(camera=not args.no_camera), separator=args.separator, n_envs=args.n_envs,
+                     env=KINDS[args.kind].env(camera=not args.no_camera, acoustics=AcousticsConfig(head=args.head)),
+                     separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,
                      final_weight=args.final_weight, navigation_coef=args.navigation_coef, lr=args.lr,

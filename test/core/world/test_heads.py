@@ -261,6 +261,16 @@ def test_the_sim_setting_reaches_the_acoustics(tmp_path):
         SimConfig(head="bogus")
 
 
+def test_the_policy_training_command_hears_through_the_head():
+    from m2h_ros.training.ppo_cli import build_parser, config_from_args
+
+    def head(argv):
+        return config_from_args(build_parser().parse_args(["--kind", "quality", *argv])).env.acoustics.head
+
+    assert head(["--head", "sofa:robot.sofa"]) == "sofa:robot.sofa"
+    assert head([]) == "kemar"
+
+
 def test_the_training_command_renders_every_stream_through_the_head():
     from m2h_ros.training.pretrain_separator import build_parser, config_from_args
 
