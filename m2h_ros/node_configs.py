@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES
 from m2h_ros.config import DEVICES, Config, setting
+from m2h_ros.core.audio.stft import AUDIO_OUTPUTS
 from m2h_ros.core.robot.base_motion import MotionLimits
 from m2h_ros.core.world.hrtf import parse_head
 from m2h_ros.errors import ConfigError
@@ -73,6 +74,10 @@ class SeparatorNodeConfig(Config):
     torch_threads: int = setting(0, "torch threads; 0: models.threads.inference_threads(1) = 1, "
                                  "the fastest at batch 1 on 2 cores (fused compact: 3.7 ms vs 4.2 ms "
                                  "with 2, scripts/bench/separator.py)", min=0, max=64)
+    audio_output: str = setting("masked_mixture", "what separator/audio carries: masked_mixture, f^B's mask on "
+                                "each ear of the mixture (the target as heard, ear mean: beats the raw microphone, "
+                                "docs/design/separator.md), or refined, the refined estimate of the dry target "
+                                "with the mixture's phase", choices=AUDIO_OUTPUTS)
     device: str = setting("cpu", "torch device of the separator: cpu, cuda, or auto (CUDA when present). The "
                           "in-process evaluations run on the CPU: cpu gives their numbers bit for bit, a GPU "
                           "the same to float tolerance", choices=DEVICES)
@@ -157,6 +162,23 @@ class EpisodeDriverConfig(Config):
                               min=0.0, max=60.0)
     step_timeout_s: float = setting(120.0, "seconds to wait for a step's motion_result before the node "
                                     "stops, naming what did not answer", min=0.1, max=3600.0)
+
+
+@dataclass(frozen=True)
+class AudioCommonAdapterConfig(Config):
+    audio_topic: str = setting("audio_stamped", "audio_common_msgs/AudioDataStamped stream to read (ros-drivers' "
+                               "audio_capture publishes it with format:=wave)")
+    info_topic: str = setting("audio_info", "audio_common_msgs/AudioInfo of that stream: channels, rate, "
+                              "sample format; frames wait for it")
+    channels: tuple[int, ...] = setting((0, 1), "stream channels to publish, 0-based, in this order (the "
+                                        "separator takes two: left ear, right ear)")
+    frame_s: float = setting(1.0, "seconds of audio per published frame (the separator takes 1 s)",
+                             min=0.01, max=60.0)
+    hop_s: float = setting(1.0, "seconds between the starts of consecutive frames", min=0.01, max=60.0)
+    episode_id: str = setting("live", "episode id of the published frames (the separator restarts its memory "
+                              "when it changes)")
+    gap_tolerance_s: float = setting(0.05, "a block stamped this much later than the previous block's end "
+                                     "means samples were lost: no frame spans it", min=0.0, max=10.0)
 
 
 # The pipeline's nodes and their config dataclasses, in the order the pipeline starts them: the live

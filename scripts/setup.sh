@@ -67,8 +67,17 @@ fi
 # --- colcon build of m2h_msgs (ament_cmake) and m2h_ros (ament_python) ----------------------
 # --symlink-install: Python sources and params are used in place, so edits need no rebuild;
 # only the interface definitions and the package metadata are build inputs.
+# ros-drivers' audio_common_msgs (for the audio_common adapter) is built here only where no ROS install
+# has it (a distro's ros-jazzy-audio-common-msgs is used as it is); this workspace's own build is not asked.
+PACKAGES=(msg_defs .)
+OTHERS=$(printf '%s' "${AMENT_PREFIX_PATH:-}" | tr ':' '\n' | grep -v "^$WS" | paste -sd: -)
+if ! AMENT_PREFIX_PATH="$VENV${OTHERS:+:$OTHERS}" "$VENV/bin/python" -c \
+    'from ament_index_python.packages import get_package_prefix; get_package_prefix("audio_common_msgs")' 2>/dev/null; then
+  PACKAGES+=(third_party/audio_common_msgs)
+fi
 BUILD_KEY=$(sha "$ROOT"/msg_defs/msg/*.msg "$ROOT"/msg_defs/CMakeLists.txt "$ROOT"/msg_defs/package.xml \
-  "$ROOT"/package.xml "$ROOT"/setup.py "$ROOT"/setup.cfg; ls "$ROOT"/params "$ROOT"/m2h_ros/models/default 2>/dev/null; echo "$PIP_KEY")
+  "$ROOT"/third_party/audio_common_msgs/msg/*.msg "$ROOT"/third_party/audio_common_msgs/package.xml \
+  "$ROOT"/package.xml "$ROOT"/setup.py "$ROOT"/setup.cfg; ls "$ROOT"/params "$ROOT"/m2h_ros/models/default 2>/dev/null; echo "$PIP_KEY ${PACKAGES[*]}")
 if ! fresh colcon "$BUILD_KEY" || [ ! -f "$WS/install/setup.bash" ]; then
   say "building m2h_msgs and m2h_ros with colcon"
   (
@@ -76,7 +85,7 @@ if ! fresh colcon "$BUILD_KEY" || [ ! -f "$WS/install/setup.bash" ]; then
     source "$VENV/bin/activate"
     export AMENT_PREFIX_PATH=$VENV  # rosidl looks up the wheels' packages through the ament index
     cd "$ROOT"
-    colcon --log-base "$WS/log" build --paths msg_defs . --symlink-install \
+    colcon --log-base "$WS/log" build --paths "${PACKAGES[@]}" --symlink-install \
       --build-base "$WS/build" --install-base "$WS/install" \
       --event-handlers console_cohesion- status- summary+ >"$WS/colcon.log" 2>&1 ||
       { tail -n 40 "$WS/colcon.log" >&2; die "colcon build failed; full log: $WS/colcon.log"; }

@@ -10,7 +10,9 @@ from m2h_ros import node_configs
 from m2h_ros.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
-NODE_CONFIGS = {**node_configs.NODE_CONFIGS, **node_configs.ROBOT_CONFIGS}  # every node with a params file
+# every node with a params file
+NODE_CONFIGS = {**node_configs.NODE_CONFIGS, **node_configs.ROBOT_CONFIGS,
+                "audio_common_adapter": node_configs.AudioCommonAdapterConfig}
 
 
 @pytest.mark.parametrize("node", sorted(NODE_CONFIGS))

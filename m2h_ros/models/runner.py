@@ -24,13 +24,12 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from m2h_ros.core.audio.stft import from_slices, rebuild_mixture_phase, stft
+from m2h_ros.core.audio.stft import AUDIO_OUTPUTS, from_slices, masked_mixture, rebuild_mixture_phase, stft
 from m2h_ros.errors import AudioError, ConfigError
 from m2h_ros.models.checkpoint import LoadedSeparator
 from m2h_ros.models.inference import fuse_for_inference
 from m2h_ros.models.separator import N_EARS, network_input
 from m2h_ros.models.threads import available_cpus, torch_threads
-
 
 class SlicedSeparation(NamedTuple):
     """A step's separator outputs as the networks give them: sliced (B, C, H, W) tensors, channels_last."""
@@ -75,9 +74,15 @@ class SeparationStep:
             self._arrays[name] = array = array if name == "binaural" else array[:, 0]
         return array
 
-    def waveform(self, mixture: np.ndarray, *, config) -> np.ndarray:
-        """(B, N) the refined estimate rebuilt with the mixture's phase (what a listener hears)."""
-        return rebuild_mixture_phase(self.refined, mixture, config=config)
+    def waveform(self, mixture: np.ndarray, *, config, output: str = "refined") -> np.ndarray:
+        """(B, N) audio for a listener: ``masked_mixture``, f^B's mask on each ear of the mixture (the
+        target as heard, ear mean), or ``refined``, the refined estimate of the dry target rebuilt
+        with the ear-mean mixture's phase."""
+        if output == "masked_mixture":
+            return masked_mixture(self.binaural, mixture, config=config)
+        if output == "refined":
+            return rebuild_mixture_phase(self.refined, mixture, config=config)
+        raise ConfigError(f"audio output {output!r}: one of {', '.join(AUDIO_OUTPUTS)}")
 
 
 class SeparatorRunner:

@@ -16,18 +16,13 @@ from __future__ import annotations
 import sys
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from m2h_msgs.msg import BinauralAudio
 from rclpy.node import Node
 
-from m2h_ros import topics
-from m2h_ros.core.audio.framing import FrameLayout, Framer
-from m2h_ros.core.audio.stft import DEFAULT_STFT
 from m2h_ros.errors import MicrophoneError
 from m2h_ros.io.microphone import Microphone, device_listing, find_device
 from m2h_ros.node_configs import CaptureNodeConfig
-from m2h_ros.ros import convert
+from m2h_ros.ros.audio_frames import FramePublisher
 from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.qos import STEP, publisher_events
 from m2h_ros.ros.spin import run_node
 
 DIAGNOSTICS = "/diagnostics"  # absolute: diagnostic aggregators listen there, whatever the namespace
@@ -39,14 +34,10 @@ class CaptureNode(Node):
         self.config: CaptureNodeConfig = declare_config(self, CaptureNodeConfig)
         self.device = find_device(self.config.device)
         rate = self.config.sample_rate or self.device.default_rate
-        self.layout = FrameLayout.of(input_rate=rate, output_rate=DEFAULT_STFT.sample_rate,
-                                     frame_s=self.config.frame_s, hop_s=self.config.hop_s)
-        self.framer = Framer(self.layout, len(self.config.channels))
-        self.pub = self.create_publisher(BinauralAudio, topics.AUDIO, STEP,
-                                         event_callbacks=publisher_events(self.get_logger(), topics.AUDIO))
+        self.frames = FramePublisher(self, input_rate=rate, channels=len(self.config.channels),
+                                     frame_s=self.config.frame_s, hop_s=self.config.hop_s,
+                                     episode_id=self.config.episode_id)
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
-        self.step = 0
-        self.dropped_frames = 0
         self.reported = (0, 0, 0)  # overruns, lost blocks, dropped frames at the last report
         # PortAudio's thread only queues blocks and wakes the executor; framing and publishing run here.
         self.wake = self.create_guard_condition(self.on_blocks)
@@ -56,21 +47,17 @@ class CaptureNode(Node):
                               block_s=self.config.block_s, queue_s=self.config.queue_s,
                               clock_ns=lambda: clock.now().nanoseconds, notify=self.wake.trigger)
         self.get_logger().info(f"ready: capturing {self.device.name!r} channels {list(self.config.channels)} at "
-                               f"{rate} Hz -> {self.layout.output_rate} Hz frames of {self.config.frame_s} s "
-                               f"every {self.config.hop_s} s on {self.pub.topic_name}")
+                               f"{rate} Hz -> {self.frames.layout.output_rate} Hz frames of {self.config.frame_s} s "
+                               f"every {self.config.hop_s} s on {self.frames.pub.topic_name}")
 
     def on_blocks(self) -> None:
         for block in self.mic.blocks():
             if block.gap:
-                self.dropped_frames += self.framer.restart()
-            for frame in self.framer.push(block.samples, block.stamp_ns):
-                self.pub.publish(convert.audio_msg(frame.samples, sample_rate=self.layout.output_rate,
-                                                   episode_id=self.config.episode_id, step=self.step,
-                                                   stamp_ns=frame.stamp_ns))
-                self.step += 1
+                self.frames.gap()
+            self.frames.push(block.samples, block.stamp_ns)
 
     def report(self) -> None:
-        counts = (self.mic.overruns, self.mic.lost_blocks, self.dropped_frames)
+        counts = (self.mic.overruns, self.mic.lost_blocks, self.frames.dropped_frames)
         worse = counts != self.reported
         self.reported = counts
         status = DiagnosticStatus(
@@ -78,7 +65,7 @@ class CaptureNode(Node):
             hardware_id=self.device.name,
             message="samples lost since the last report" if worse else "capturing",
             values=[KeyValue(key=k, value=str(v)) for k, v in (
-                ("frames_published", self.step), ("overruns", counts[0]), ("lost_blocks", counts[1]),
+                ("frames_published", self.frames.published), ("overruns", counts[0]), ("lost_blocks", counts[1]),
                 ("dropped_frames", counts[2]), ("sample_rate", self.mic.sample_rate),
                 ("channels", list(self.config.channels)), ("input_latency_s", f"{self.mic.latency_s:.4f}"))])
         msg = DiagnosticArray(status=[status])
@@ -88,8 +75,8 @@ class CaptureNode(Node):
     def destroy_node(self) -> None:
         if hasattr(self, "mic"):
             self.mic.close()  # first: PortAudio's thread must not wake a destroyed guard condition
-            print(f"capture_node: {self.step} frames published, {self.mic.overruns} overruns, "
-                  f"{self.mic.lost_blocks} lost blocks, {self.dropped_frames} dropped frames", flush=True)
+            print(f"capture_node: {self.frames.published} frames published, {self.mic.overruns} overruns, "
+                  f"{self.mic.lost_blocks} lost blocks, {self.frames.dropped_frames} dropped frames", flush=True)
         super().destroy_node()
 
 

@@ -11,7 +11,7 @@ import os
 import sys
 
 NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node",
-         "capture_node", "base_node", "episode_driver")
+         "capture_node", "base_node", "episode_driver", "audio_common_adapter")
 
 
 def run(node: str) -> None:

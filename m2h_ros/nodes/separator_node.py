@@ -1,5 +1,6 @@
 """separator_node: f^B -> f^M -> f^R on each step's binaural audio; publishes the separated binaural,
-monaural and refined spectrograms and the refined estimate as audio (mixture phase) to listen to.
+monaural and refined spectrograms, and audio to listen to (``audio_output``): by default f^B's mask on
+each ear of the mixture (the target as heard, ear mean), or the refined estimate with the mixture's phase.
 
 The refiner's memory restarts whenever the episode id changes. The target class comes from the
 episode's EpisodeInfo (a frame waits until its episode's info arrives) or, for a live microphone
@@ -94,7 +95,7 @@ class SeparatorNode(Node):
                                                           layout="FT", stft=self.stft, **tag))
         self.pub_refined.publish(convert.spectrogram_msg(out.refined[0], kind=Spectrogram.REFINED, layout="FT",
                                                          stft=self.stft, **tag))
-        waveform = out.waveform(mixture[None], config=self.stft)
+        waveform = out.waveform(mixture[None], config=self.stft, output=self.config.audio_output)
         self.pub_audio.publish(convert.audio_msg(waveform, sample_rate=self.stft.sample_rate, **tag))
         self.latencies.append(time.perf_counter() - started)
         # Pictures to look at and audio to hear, after everything the controller waits for.

@@ -277,3 +277,22 @@ def rebuild_mixture_phase(magnitude: np.ndarray, binaural_mixture: np.ndarray, *
         raise AudioError(f"binaural mixture must have shape (..., 2, N), got {mixture.shape}")
     mono = mixture.mean(axis=-2)
     return rebuild_with_phase(magnitude, stft(mono, config=config), config=config, length=mono.shape[-1])
+
+
+# What a listener is given (separator_node's audio_output); the first is the default.
+AUDIO_OUTPUTS = ("masked_mixture", "refined")
+
+
+def masked_mixture(binaural_magnitude: np.ndarray, binaural_mixture: np.ndarray, *,
+                   config: StftConfig = DEFAULT_STFT) -> np.ndarray:
+    """A separated binaural magnitude (..., 2, F, T) with each ear's own mixture phase, ear mean (..., N).
+
+    f^B predicts a ratio mask on each ear's mixture; applied there, each ear keeps its own timing and
+    room, which the mean then adds coherently: the target as the microphones heard it, less the
+    distractor (docs/design/separator.md, "What a listener gets")."""
+    mixture = np.asarray(binaural_mixture)
+    if mixture.ndim < 2 or mixture.shape[-2] != 2:
+        raise AudioError(f"binaural mixture must have shape (..., 2, N), got {mixture.shape}")
+    ears = rebuild_with_phase(binaural_magnitude, stft(mixture, config=config), config=config,
+                              length=mixture.shape[-1])
+    return ears.mean(axis=-2)

@@ -418,6 +418,12 @@ class BatchEnv:
         if self._workers is not None:
             self._workers.prepare(keys)
 
+    def target_rirs(self, slots: Sequence[int]) -> np.ndarray:
+        """(B, 2, T) binaural RIRs from each slot's target to its current pose: what the target alone
+        as heard is convolved with (``info["target_binaural"]`` = clip * RIR, first S samples)."""
+        return np.concatenate([self._slot_scene[s].bank.rirs([self._sources[s, 0]], [self._node[s]], [self._heading[s]])
+                               for s in slots])
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown()

@@ -1,0 +1,126 @@
+"""What a listener gets: the audio ``separator/audio`` publishes, against the raw microphone, at step 0
+of test episodes (Stand In-Place), scored against references a deployed robot can fairly be held to.
+
+References (ear means of binaural signals; the reasoning is in docs/design/separator.md, "What a
+listener gets"):
+
+* ``early``: the target's early image at the ears: its dry clip through the first ``EARLY_S`` (50 ms)
+  of its binaural room impulse response after the direct sound: the direct path and the early
+  reflections, which a listener hears as the source itself, without the late reverberation, which
+  no single-channel mask can take out;
+* ``as_heard``: the target alone as heard, whole RIR (``scoring.DEPLOYABLE_REFERENCE``).
+
+Estimates (waveforms):
+
+* ``microphone`` (the floor): the ear mean of the mixture, i.e. what the microphones give;
+* ``masked_mixture``: f^B's mask on each ear of the mixture, ear mean (separator/audio's default);
+* ``refined``: f^R's refined estimate of the dry target with the ear-mean mixture's phase (its
+  earlier output, still ``audio_output: refined``);
+* ``oracle``: the ideal mask min(|R|, |X|) on the ear-mean mixture X with its phase, R = the
+  reference's share of the mixture (/ number of sources); scored against its own reference.
+
+Metrics: SI-SDR (dB) against each reference; STOI (``pystoi``, speech targets only; NaN for music)
+against the early image.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.signal
+import torch
+from pystoi import stoi
+from tqdm import tqdm
+
+from m2h_ros.core.audio.metrics import si_sdr
+from m2h_ros.core.audio.scoring import StepTruth, deployable_reference
+from m2h_ros.core.audio.stft import from_slices, masked_mixture, rebuild_mixture_phase, stft, to_slices
+from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
+from m2h_ros.core.world.env import BatchEnv, EnvConfig
+from m2h_ros.core.world.episodes import Episode
+from m2h_ros.errors import ConfigError
+from m2h_ros.models.checkpoint import LoadedSeparator
+
+EARLY_S = 0.05
+REFERENCES = ("early", "as_heard")
+ESTIMATES = ("microphone", "masked_mixture", "refined", "oracle")
+# STOI against the early image only: the reference a listener is held to (and half the cost)
+METRICS = ("si_sdr_early", "stoi_early", "si_sdr_as_heard")
+
+
+def early_image(clips: np.ndarray, rirs: np.ndarray, delays: np.ndarray, *, sample_rate: int) -> np.ndarray:
+    """(B, N) ear mean of each dry clip (B, N) through its RIR (B, 2, T) cut ``EARLY_S`` after the
+    direct sound, which arrives ``delays`` (B,) samples in."""
+    out = np.empty(clips.shape, np.float32)
+    for i, (clip, rir, delay) in enumerate(zip(clips, rirs, delays)):
+        cut = int(np.ceil(delay)) + round(EARLY_S * sample_rate)
+        out[i] = scipy.signal.fftconvolve(clip[None], rir[:, :cut], axes=-1)[:, : clips.shape[-1]].mean(axis=0)
+    return out
+
+
+def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], library: SoundLibrary, *,
+                      env_config: EnvConfig | None = None, n_envs: int = 16,
+                      progress: bool = True) -> dict[str, dict[str, np.ndarray]]:
+    """Per-episode scores ``{estimate: {metric: (E,)}}`` (metrics: ``METRICS``)."""
+    env_config = env_config or EnvConfig(camera=False)
+    if env_config.stft != loaded.stft:
+        raise ConfigError(f"the environment's STFT {env_config.stft} differs from the separator's {loaded.stft}")
+    config, rate = loaded.stft, loaded.stft.sample_rate
+    class_map = np.array([loaded.class_index(name) for name in TARGET_CATEGORIES])
+    speech = TARGET_CATEGORIES.index("speech")
+    episodes = list(episodes)
+    n_envs = min(n_envs, len(episodes))
+    scores = {e: {m: np.full(len(episodes), np.nan) for m in METRICS} for e in ESTIMATES}
+    env = BatchEnv(episodes, library, n_envs=n_envs, config=env_config, autoreset=False)
+    loaded.separator.eval()
+    try:
+        for first in tqdm(range(0, len(episodes), n_envs), desc="listener eval", unit="batch", disable=not progress):
+            rows = np.arange(first, min(first + n_envs, len(episodes)))
+            slots = np.concatenate([rows, np.full(n_envs - len(rows), rows[0])])  # pad a short last batch
+            obs, info = env.reset(episodes=[episodes[i] for i in slots])
+            keep = slice(0, len(rows))
+            mixture = obs["audio"][keep]
+            truth = StepTruth(target_monaural=info["target_monaural"][keep],
+                              target_binaural=info["target_binaural"][keep])
+            references = {"early": early_image(truth.target_monaural, env.target_rirs(range(len(rows))),
+                                               info["target_delay"][keep], sample_rate=rate),
+                          "as_heard": deployable_reference(truth)}
+            n_sources = np.array([len(episodes[i].source_nodes) for i in rows], np.float32)
+            spec = stft(mixture, config=config)
+            sliced = torch.from_numpy(np.ascontiguousarray(to_slices(np.abs(spec), n_slices=config.n_freq_slices)))
+            with torch.no_grad():
+                step = loaded.separator(sliced, torch.from_numpy(class_map[obs["target_class"][keep]]))
+            binaural = from_slices(step.binaural.numpy(), n_slices=config.n_freq_slices)
+            refined = from_slices(step.refined.numpy(), n_slices=config.n_freq_slices)[:, 0]
+            mixture_mean = np.abs(spec.mean(axis=1))
+            waves = {"microphone": mixture.mean(axis=1),
+                     "masked_mixture": masked_mixture(binaural, mixture, config=config),
+                     "refined": rebuild_mixture_phase(refined, mixture, config=config)}
+            is_speech = obs["target_class"][keep] == speech
+            for name, reference in references.items():
+                share = np.abs(stft(reference / n_sources[:, None], config=config))
+                oracle = rebuild_mixture_phase(np.minimum(share, mixture_mean), mixture, config=config)
+                for estimate, wave in {**waves, "oracle": oracle}.items():
+                    scores[estimate][f"si_sdr_{name}"][rows] = si_sdr(wave, reference)
+                    for k in np.flatnonzero(is_speech) if f"stoi_{name}" in METRICS else ():
+                        scores[estimate][f"stoi_{name}"][rows[k]] = stoi(reference[k], wave[k], rate)
+    finally:
+        env.close()
+    return scores
+
+
+def summarize(scores: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:
+    """Mean, standard error and count of each metric (NaNs, i.e. non-speech STOI, left out); for every
+    estimate also its paired difference from the microphone."""
+    out: dict[str, dict[str, float]] = {}
+    for estimate, metrics in scores.items():
+        row: dict[str, float] = {}
+        for name, values in metrics.items():
+            for label, data in ((name, values), (f"{name}_minus_microphone", values - scores["microphone"][name])):
+                data = data[np.isfinite(data)]
+                row[label] = float(np.mean(data)) if len(data) else float("nan")
+                row[f"{label}_sem"] = float(np.std(data, ddof=1) / np.sqrt(len(data))) if len(data) > 1 else 0.0
+                row[f"{label}_n"] = int(len(data))
+        out[estimate] = row
+    return out

@@ -1,0 +1,85 @@
+#!/usr/bin/env python3
+"""What a listener gets: separator/audio against the raw microphone (floor), the earlier refined output
+and an ideal-mask oracle, by SI-SDR and STOI against the target's early image and as heard.
+
+    python scripts/eval_listener.py --task near_target --count 500 --out docs/results/live_output/near_target
+
+Step 0 (Stand In-Place) of the first --count test episodes of each sound split; definitions in
+``m2h_ros/training/listener_eval.py``. Writes results.md and results.json into --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+from m2h_ros.core.sounds.library import SoundLibrary
+from m2h_ros.core.world.env import EnvConfig
+from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
+from m2h_ros.errors import reports_errors
+from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
+from m2h_ros.paths import file_label, repo_relative
+from m2h_ros.training.listener_eval import ESTIMATES, REFERENCES, evaluate_listener, summarize
+
+LABELS = {"microphone": "microphone (floor)", "masked_mixture": "output: masked mixture",
+          "refined": "old output: refined", "oracle": "ideal mask (oracle)"}
+REFERENCE_LABELS = {"early": "early image (direct + 50 ms)", "as_heard": "as heard (whole RIR)"}
+
+
+def format_table(results: dict[str, dict]) -> str:
+    lines = []
+    for reference in REFERENCES:
+        lines += [f"\nAgainst the target's {REFERENCE_LABELS[reference]}, ear mean:\n",
+                  "| sounds | estimate | SI-SDR (dB) | vs microphone (paired) | STOI (speech) | n (speech) |",
+                  "|---|---|---|---|---|---|"]
+        for split, summary in results.items():
+            for estimate in ESTIMATES:
+                s, sdr, st = summary[estimate], f"si_sdr_{reference}", f"stoi_{reference}"
+                paired = "" if estimate == "microphone" else \
+                    f"{s[sdr + '_minus_microphone']:+.2f} ± {s[sdr + '_minus_microphone_sem']:.2f}"
+                stoi = f"{s[st]:.3f} ± {s[st + '_sem']:.3f} | {s[sdr + '_n']} ({s[st + '_n']})" if st in s else \
+                    f"| {s[sdr + '_n']}"
+                lines.append(f"| {split} | {LABELS[estimate]} | {s[sdr]:.2f} ± {s[sdr + '_sem']:.2f} | {paired} | {stoi} |")
+    return "\n".join(lines)
+
+
+@reports_errors("eval_listener")
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT)
+    parser.add_argument("--count", type=int, default=500, help="episodes per sound split")
+    parser.add_argument("--task", choices=TASKS, default="near_target")
+    parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
+    parser.add_argument("--out", type=Path, required=True, help="folder for results.md and results.json")
+    args = parser.parse_args(argv)
+    loaded = load_separator(args.checkpoint)
+    library = SoundLibrary.load()
+    results, started = {}, time.perf_counter()
+    for split in args.sound_split or SOUND_SPLITS:
+        episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
+        results[split] = summarize(evaluate_listener(loaded, episodes[: args.count], library,
+                                                     env_config=EnvConfig(camera=False)))
+    given = sys.argv[1:] if argv is None else argv
+    command = shlex.join(["python", "scripts/eval_listener.py", *given])
+    table = format_table(results)
+    wall = round(time.perf_counter() - started, 1)
+    print(table)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "results.md").write_text(
+        f"# What a listener gets: {args.task}, step 0, {args.count} test episodes per sound split\n\n"
+        f"`{command}` ({date.today().isoformat()}, {wall} s)\n\nSeparator: {file_label(args.checkpoint)}\n"
+        f"{table}\n")
+    (args.out / "results.json").write_text(json.dumps(
+        {"command": command, "checkpoint": repo_relative(args.checkpoint), "task": args.task, "scene_split": "test",
+         "step": 0, "count_per_split": args.count, "wall_seconds": wall, "results": results}, indent=1) + "\n")
+    print(f"wrote {repo_relative(args.out)}/results.md, results.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
