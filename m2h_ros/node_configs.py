@@ -134,6 +134,9 @@ class CaptureNodeConfig(Config):
     hop_s: float = setting(1.0, "seconds between the starts of consecutive frames (< frame_s: overlapping "
                            "frames, an estimate more often)", min=0.01, max=60.0)
     block_s: float = setting(0.02, "seconds of audio PortAudio hands over per callback", min=0.001, max=1.0)
+    buffer_s: float = setting(0.25, "seconds of audio the device buffers (PortAudio's input latency): blocks "
+                              "still arrive every block_s; a deeper buffer survives longer stalls of a busy "
+                              "machine without an overrun", min=0.005, max=5.0)
     queue_s: float = setting(2.0, "seconds of audio kept between PortAudio's thread and the publisher; when "
                              "the node falls further behind, blocks are lost and counted", min=0.05, max=60.0)
     episode_id: str = setting("live", "episode id of the published frames (the separator restarts its memory "

@@ -126,7 +126,7 @@ class Microphone:
     drain what arrived. ``notify`` is called on PortAudio's thread after each block is queued."""
 
     def __init__(self, device: InputDevice, *, channels: tuple[int, ...], sample_rate: int, block_s: float,
-                 queue_s: float, clock_ns: Callable[[], int] = time.time_ns,
+                 queue_s: float, buffer_s: float, clock_ns: Callable[[], int] = time.time_ns,
                  notify: Callable[[], None] = lambda: None):
         if not channels or max(channels) >= device.channels or min(channels) < 0:
             raise MicrophoneError(f"channels {list(channels)} of {device.name!r}, which has {device.channels} "
@@ -145,7 +145,7 @@ class Microphone:
                                           samplerate=sample_rate, blocksize=block, dtype="float32",
                                           # a deep device buffer: an input's blocks still arrive as they
                                           # fill, and a busy machine overruns it far less often
-                                          latency="high", callback=self._callback)
+                                          latency=buffer_s, callback=self._callback)
             self._stream.start()
         except sd.PortAudioError as exc:
             raise MicrophoneError(f"cannot open {device.name!r} at {sample_rate} Hz with "

@@ -45,6 +45,7 @@ class CaptureNode(Node):
         clock = self.get_clock()
         self.mic = Microphone(self.device, channels=self.config.channels, sample_rate=rate,
                               block_s=self.config.block_s, queue_s=self.config.queue_s,
+                              buffer_s=self.config.buffer_s,
                               clock_ns=lambda: clock.now().nanoseconds, notify=self.wake.trigger)
         self.get_logger().info(f"ready: capturing {self.device.name!r} channels {list(self.config.channels)} at "
                                f"{rate} Hz -> {self.frames.layout.output_rate} Hz frames of {self.config.frame_s} s "

@@ -75,6 +75,11 @@ def test_a_wave_stream_becomes_stamped_frames_and_a_lost_stretch_is_never_splice
         assert pub_audio.get_subscription_count() and pub_info.get_subscription_count(), "adapter never matched"
         info = AudioInfo(channels=CHANNELS, sample_rate=RATE, sample_format="S16LE", bitrate=RATE * 16 * CHANNELS,
                          coding_format="wave")
+        # Its `audio` publisher appears once it has the AudioInfo: by then the stream's reader has matched too.
+        while node.count_publishers("audio") == 0 and time.monotonic() < deadline:
+            pub_info.publish(info)
+            executor.spin_once(timeout_sec=0.2)
+        time.sleep(0.5)
         start_ns = 1_700_000_000 * 10**9
         for k in range(len(pcm) // BLOCK):
             if k % 50 == 0:

@@ -135,6 +135,7 @@ def test_a_stalled_node_counts_the_overrun_and_never_splices_across_the_gap(mic,
     # (a reader the writer lost during the stall may get the transient-local history again: by step)
     frames = list({msg.step: (msg, arrived) for msg, arrived in frames}.values())
     assert [msg.step for msg, _ in frames] == list(range(len(frames)))
+    signal_ = np.concatenate([signal_, np.zeros((2 * RATE, signal_.shape[1]), np.float32)])  # then silence
     full = expected_frames(signal_)
     resumed = False
     for msg, _ in frames:
