@@ -31,8 +31,13 @@ def test_setup_refuses_pythons_the_ros_wheels_are_not_built_for(version, tmp_pat
     bin_dir.mkdir()
     for name in ("python3", "python3.11", "python3.12"):  # every candidate is the wrong one
         (bin_dir / name).symlink_to(_interpreter(version))
+    # A copy outside the repository: were a wrong Python accepted, the set-up would stop at once in an
+    # empty folder instead of installing into the repository.
+    (tmp_path / "scripts").mkdir()
+    shutil.copy(SETUP, tmp_path / "scripts" / "setup.sh")
     env = {**os.environ, "PATH": f"{bin_dir}:/bin", "M2H_PYTHON": ""}
-    done = subprocess.run(["bash", str(SETUP)], env=env, capture_output=True, text=True, timeout=60)
+    done = subprocess.run(["bash", str(tmp_path / "scripts" / "setup.sh")], env=env, capture_output=True, text=True,
+                          timeout=120)
     assert done.returncode == 1
     assert "Python 3.11 or 3.12 not found" in done.stderr
 
