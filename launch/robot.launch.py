@@ -18,8 +18,7 @@ from launch import LaunchDescription
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from m2h_ros import topics
-from m2h_ros.node_configs import ROBOT_CONFIGS
+from m2h_ros.node_configs import ROBOT_CONFIGS, ROBOT_REMAPS
 from m2h_ros.ros.launching import Argument, dds_profile, declare, exit_handler, parameters, run_directory
 
 NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
@@ -50,7 +49,7 @@ def generate_launch_description():
     overrides["separator_node"] = {**overrides.get("separator_node", {}),
                                    "target_class": overrides["episode_driver"]["target_class"]}
     nodes = {name: Node(package="m2h_ros", executable=name, name=name, output="screen",
-                        parameters=[params[name], overrides.get(name, {})], remappings=list(topics.ROBOT_REMAPS.get(name, ())))
+                        parameters=[params[name], overrides.get(name, {})], remappings=list(ROBOT_REMAPS.get(name, ())))
              for name in NODES}
     handlers = [exit_handler(action, name, finishes_run=name == "episode_driver") for name, action in nodes.items()]
     return LaunchDescription([*declare(ARGUMENTS, configs), *dds_profile(share), *nodes.values(), *handlers])

@@ -3,6 +3,7 @@
 from dataclasses import dataclass
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES
+from m2h_ros import topics
 from m2h_ros.config import DEVICES, Config, setting
 from m2h_ros.core.audio.stft import AUDIO_OUTPUTS
 from m2h_ros.core.robot.base_motion import MotionLimits
@@ -194,3 +195,9 @@ NODE_CONFIGS = {"live_view_node": LiveViewConfig, "recorder_node": RecorderConfi
 ROBOT_CONFIGS = {"recorder_node": RecorderConfig, "capture_node": CaptureNodeConfig, "base_node": BaseNodeConfig,
                  "controller_node": ControllerConfig, "separator_node": SeparatorNodeConfig,
                  "episode_driver": EpisodeDriverConfig}
+# Robot mode's remappings, node -> (topic, to): the microphones' frames go to the episode driver, which
+# republishes the chosen ones as the steps; the controller reads the step-stamped odometry and images.
+# (Here, not in topics.py: every upper-case name there is a topic name.)
+ROBOT_REMAPS = {"capture_node": ((topics.AUDIO, topics.MIC_AUDIO),),
+                "controller_node": ((topics.ODOM, topics.STEP_ODOM), (topics.RGB, topics.STEP_RGB),
+                                    (topics.DEPTH, topics.STEP_DEPTH))}

@@ -33,7 +33,3 @@ BINAURAL_IMAGE = "spectrogram/separated_binaural"  # the same for f^B's separate
 MONAURAL_IMAGE = "spectrogram/monaural"  # f^M's monaural estimate (separator)
 REFINED_IMAGE = "spectrogram/refined"  # f^R's refined estimate (separator)
 TARGET_IMAGE = "/ground_truth/spectrogram/target"  # the target's dry clip (evaluator)
-# Robot mode's remappings, node -> (topic, to): the microphones' frames go to the episode driver, which
-# republishes the chosen ones as the steps; the controller reads the step-stamped odometry and images.
-ROBOT_REMAPS = {"capture_node": ((AUDIO, MIC_AUDIO),),
-                "controller_node": ((ODOM, STEP_ODOM), (RGB, STEP_RGB), (DEPTH, STEP_DEPTH))}

@@ -33,8 +33,7 @@ from pathlib import Path
 import yaml
 
 from m2h_ros.errors import M2HError
-from m2h_ros.node_configs import NODE_CONFIGS, ROBOT_CONFIGS
-from m2h_ros.topics import ROBOT_REMAPS
+from m2h_ros.node_configs import NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_REMAPS
 
 ROOT = Path(__file__).resolve().parents[1]
 # Start order: the live view and the recorder first, so they hear every topic from its first message.

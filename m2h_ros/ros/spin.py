@@ -57,6 +57,8 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
         # the executor's constructor (that leaves a half-built executor whose __del__ raises).
         executor = StepExecutor()
         node = node_type()
+        if not rclpy.ok():  # a Ctrl-C while the node was being built shut the context down: nothing to spin
+            raise KeyboardInterrupt
         profile_dir = os.environ.get("M2H_PROFILE_DIR")
         if profile_dir:  # cProfile of the spin (not the start-up), one <node>.prof per process
             profiler = cProfile.Profile(time.process_time)  # CPU, not wall time: idle waits cost nothing
