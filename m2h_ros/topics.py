@@ -24,7 +24,8 @@ STEP_RGB = "step/camera/rgb/image_raw"  # sensor_msgs/Image: the robot's RGB at 
 STEP_DEPTH = "step/camera/depth/image_raw"  # sensor_msgs/Image: its depth at a step (episode driver)
 STEP_SCORE = "scores/step"  # m2h_msgs/StepScore (evaluator)
 EPISODE_SCORE = "scores/episode"  # m2h_msgs/EpisodeScore (evaluator)
-# Seeing and hearing a run (rviz, Foxglove); TF goes on the standard /tf and /tf_static.
+# Seeing and hearing a run (rviz, Foxglove).
+TF, TF_STATIC = "/tf", "/tf_static"  # tf2_msgs/TFMessage: the robot's frames (sim where tf2_msgs is installed, else recorder)
 MAP = "map"  # nav_msgs/OccupancyGrid, latched: the episode's floor plan (sim)
 PATH = "path"  # visualization_msgs/MarkerArray: where the robot has been this episode (sim)
 SOURCES = "/ground_truth/sources"  # visualization_msgs/MarkerArray: target and distractors (sim -> ground truth)

@@ -4,8 +4,8 @@ listen to (foxglove_msgs/RawAudio, pcm-s16, from the mixture, the separated esti
 
 ROS-free: it works on serialized CDR, so the recorder can write it where neither tf2_msgs nor
 foxglove_msgs is installed (the bag writer knows their released definitions, see io/msg_defs.py), and a
-live view can serve it the same way. Where the graph publishes a topic itself (tf2_msgs installed), the
-recorder records that one and leaves this one out.
+live view can serve it the same way. Where the graph publishes a topic itself (tf2_msgs or foxglove_msgs
+installed), the recorder records that one and leaves this one out.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from m2h_ros.core.audio.pcm import pcm_int16
 from m2h_ros.core.world.frames import Transform, base_transform, quaternion_yaw, static_transforms
 from m2h_ros.io.msg_defs import RAW_AUDIO, TF_MESSAGE, typestore
 
-TF, TF_STATIC = "/tf", "/tf_static"
+TF, TF_STATIC = topics.TF, topics.TF_STATIC
 PCM_SUFFIX = "/pcm"  # RawAudio of an audio topic: the same name with this suffix
 # Float audio to pcm-s16, in bags and in the live view alike (mixtures peak near 20; full scale is 25).
 PCM_GAIN = 0.04

@@ -30,6 +30,7 @@ from m2h_ros.core.world import frames
 from m2h_ros.core.world.env import N_ACTIONS
 from m2h_ros.core.world.player import EpisodePlayer, PlayerStep
 from m2h_ros.errors import PipelineError
+from m2h_ros.io.msg_defs import TF_MESSAGE
 from m2h_ros.node_configs import SimConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.graph import missing_consumers
@@ -69,10 +70,10 @@ class SimNode(Node):
         self.pub_path = publisher(MarkerArray, topics.PATH)
         self.pub_sources = publisher(MarkerArray, topics.SOURCES)
         # TF where tf2_msgs is installed; elsewhere the recorder writes the same tree into the bag.
-        self.tf_message = optional_message_class("tf2_msgs/msg/TFMessage")
+        self.tf_message = optional_message_class(TF_MESSAGE)
         if self.tf_message is not None:
-            self.pub_tf, self.pub_tf_static = publisher(self.tf_message, "/tf", TF), \
-                publisher(self.tf_message, "/tf_static", LATEST)
+            self.pub_tf = publisher(self.tf_message, topics.TF, TF)
+            self.pub_tf_static = publisher(self.tf_message, topics.TF_STATIC, LATEST)
         self.maps: dict[str, frames.OccupancyGrid] = {}  # scene fingerprint -> its grid
         self.path: list[tuple[float, float]] = []  # the robot's positions this episode
         self.last_pose: tuple[np.ndarray, int] | None = None  # pose and stamp (ns) of the last observation
