@@ -81,7 +81,7 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
         raise ConfigError(f"episode {episode!r} is not in {bag}; it holds {', '.join(ids) or 'none'}")
     wanted = [absolute(t) for t in (topics.EPISODE, topics.AUDIO, topics.SEPARATED_AUDIO, topics.STEP_SCORE,
                                     topics.AGENT_POSE, topics.RGB)] + [MAP_TOPIC, SOURCES_TOPIC]
-    media = None
+    media = EpisodeMedia(episode, episode, 0, 0)  # messages of a step may be logged before its EpisodeInfo
     step_of: dict[int, int] = {}  # stamp (ns) -> step: images and scene messages carry only their stamp
     stamped: list[tuple[str, int, object]] = []
     for item in read_messages(bag, topics=wanted):
@@ -94,10 +94,8 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
         if getattr(msg, "episode_id", None) != episode:
             continue
         if topic == absolute(topics.EPISODE):
-            media = EpisodeMedia(episode, f"{msg.task.replace('_', '-')}: {msg.target_class} target vs "
-                                 f"{', '.join(msg.source_classes[1:])} ({msg.episode_id})", 0, 0)
-        elif media is None:
-            continue  # the episode's own messages follow its EpisodeInfo
+            media.title = (f"{msg.task.replace('_', '-')}: {msg.target_class} target vs "
+                           f"{', '.join(msg.source_classes[1:])} ({msg.episode_id})")
         elif topic == absolute(topics.AUDIO):
             samples = np.asarray(msg.samples, np.float32).reshape(msg.channels, -1)
             media.sample_rate, media.step_samples = int(msg.sample_rate), samples.shape[1]
@@ -110,7 +108,7 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
         elif topic == absolute(topics.AGENT_POSE):
             p, q = msg.pose.position, msg.pose.orientation
             media.pose[msg.step] = (p.x, p.y, float(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y**2 + q.z**2))))
-    if media is None or not media.mixture:
+    if not media.mixture:
         raise BagError(f"{bag}: episode {episode!r} has no audio")
     first = min(step_of)
     for topic, stamp, msg in stamped:

@@ -204,6 +204,8 @@ def read_messages(
         with Reader(path) as reader:
             wanted = set(topics) if topics is not None else None
             conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+            if not conns:  # rosbags reads every connection when given none
+                return
             for conn, timestamp, data in reader.messages(connections=conns):
                 try:
                     message = store.deserialize_cdr(data, conn.msgtype)

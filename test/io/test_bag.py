@@ -54,6 +54,7 @@ def test_topic_filter(tmp_path):
             writer.write("/a", name, k, to_rosbags(store, name, sample_values(store, name, k)))
             writer.write("/b", name, k, to_rosbags(store, name, sample_values(store, name, k)))
     assert [m.topic for m in read_messages(tmp_path / "bag", topics=["/b"])] == ["/b"] * 3
+    assert list(read_messages(tmp_path / "bag", topics=["/not_recorded"])) == []
 
 
 def test_existing_bag_is_not_overwritten(tmp_path):
