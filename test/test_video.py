@@ -17,7 +17,7 @@ from scipy.signal import correlate
 
 from m2h_ros import topics
 from m2h_ros.io.bag import BagWriter, read_messages
-from m2h_ros.io.synthetic import SyntheticRun, write_synthetic_run
+from m2h_ros.io.synthetic import STEP_NS, SyntheticRun, write_synthetic_run
 from m2h_ros.video import STREAM_TITLES, read_episode
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -149,3 +149,18 @@ def test_a_missing_encoder_is_named(video, tmp_path):
                             env={**os.environ, "IMAGEIO_FFMPEG_EXE": str(tmp_path / "no_ffmpeg")})
     assert result.returncode == 2
     assert "make_video: error: cannot run ffmpeg" in result.stderr and "no_ffmpeg" in result.stderr
+
+
+class LateEpisodeInfo(BagWriter):
+    """Logs each EpisodeInfo after its episode's first step, as a busy recorder can."""
+
+    def write(self, topic, msgtype, timestamp, message):
+        super().write(topic, msgtype, timestamp + (3 * STEP_NS // 2 if topic == "/episode" else 0), message)
+
+
+def test_steps_logged_before_their_episode_info_are_kept(tmp_path):
+    with LateEpisodeInfo(tmp_path / "bag") as writer:
+        write_synthetic_run(tmp_path / "bag", SyntheticRun(episodes=2, max_steps=STEPS - 1), writer=writer)
+    media = read_episode(tmp_path / "bag", 1)
+    assert media.steps == list(range(STEPS)) and sorted(media.pose) == list(range(STEPS))
+    assert media.title.startswith("near-target: speech target vs music")
