@@ -1,7 +1,8 @@
 """ros2 launch m2h_ros robot.launch.py [target_class:=speech] [steps:=20] [controller:=move2hear] [device:=NAME] ...
 
 Robot mode: the pipeline on a robot, without the simulator and the evaluator. capture_node records
-the robot's microphones (device:=, channels:=), episode_driver turns the stream into steps (a step's
+the robot's microphones (device:=), or with microphones:=audio_common audio_common_adapter reads the
+robot's audio_common stream; episode_driver turns the stream into steps (a step's
 frame is captured after the base finished the step before), separator_node and controller_node work
 as in simulation, base_node carries each command out on the base (odom in, cmd_vel out), and the
 recorder writes the run to a fresh runs/<date-time>/bag. The shipped Move2Hear policies read the
@@ -15,10 +16,12 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import LaunchConfigurationEquals
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from m2h_ros.node_configs import ROBOT_CONFIGS, ROBOT_REMAPS
+from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_REMAPS
 from m2h_ros.ros.launching import Argument, dds_profile, declare, exit_handler, parameters, run_directory
 
 NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
@@ -48,8 +51,14 @@ def generate_launch_description():
     overrides["controller_node"]["camera"] = overrides["episode_driver"]["camera"]
     overrides["separator_node"] = {**overrides.get("separator_node", {}),
                                    "target_class": overrides["episode_driver"]["target_class"]}
+    microphones = [DeclareLaunchArgument("microphones", default_value="capture", choices=list(MICROPHONES),
+                                         description="capture: a microphone PortAudio sees (capture_node); "
+                                                     "audio_common: the robot's audio_common stream")]
+    source = {node: LaunchConfigurationEquals("microphones", choice) for choice, node in MICROPHONES.items()}
     nodes = {name: Node(package="m2h_ros", executable=name, name=name, output="screen",
-                        parameters=[params[name], overrides.get(name, {})], remappings=list(ROBOT_REMAPS.get(name, ())))
+                        parameters=[params[name], overrides.get(name, {})], remappings=list(ROBOT_REMAPS.get(name, ())),
+                        condition=source.get(name))
              for name in NODES}
     handlers = [exit_handler(action, name, finishes_run=name == "episode_driver") for name, action in nodes.items()]
-    return LaunchDescription([*declare(ARGUMENTS, configs), *dds_profile(share), *nodes.values(), *handlers])
+    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, *dds_profile(share), *nodes.values(),
+                              *handlers])

@@ -192,12 +192,17 @@ NODE_CONFIGS = {"live_view_node": LiveViewConfig, "recorder_node": RecorderConfi
                 "controller_node": ControllerConfig, "separator_node": SeparatorNodeConfig, "sim_node": SimConfig}
 # Robot mode (no simulator, no evaluator): the microphones, the base and the episode driver, which
 # ends the run.
-ROBOT_CONFIGS = {"recorder_node": RecorderConfig, "capture_node": CaptureNodeConfig, "base_node": BaseNodeConfig,
+ROBOT_CONFIGS = {"recorder_node": RecorderConfig, "capture_node": CaptureNodeConfig,
+                 "audio_common_adapter": AudioCommonAdapterConfig, "base_node": BaseNodeConfig,
                  "controller_node": ControllerConfig, "separator_node": SeparatorNodeConfig,
                  "episode_driver": EpisodeDriverConfig}
+# Where robot mode's audio comes from (one of them runs): a microphone PortAudio sees, or a robot's
+# audio_common stream.
+MICROPHONES = {"capture": "capture_node", "audio_common": "audio_common_adapter"}
 # Robot mode's remappings, node -> (topic, to): the microphones' frames go to the episode driver, which
 # republishes the chosen ones as the steps; the controller reads the step-stamped odometry and images.
 # (Here, not in topics.py: every upper-case name there is a topic name.)
 ROBOT_REMAPS = {"capture_node": ((topics.AUDIO, topics.MIC_AUDIO),),
+                "audio_common_adapter": ((topics.AUDIO, topics.MIC_AUDIO),),
                 "controller_node": ((topics.ODOM, topics.STEP_ODOM), (topics.RGB, topics.STEP_RGB),
                                     (topics.DEPTH, topics.STEP_DEPTH))}

@@ -33,7 +33,7 @@ from pathlib import Path
 import yaml
 
 from m2h_ros.errors import M2HError
-from m2h_ros.node_configs import NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_REMAPS
+from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_REMAPS
 
 ROOT = Path(__file__).resolve().parents[1]
 # Start order: the live view and the recorder first, so they hear every topic from its first message.
@@ -67,6 +67,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     robot.add_argument("--robot", action="store_true", help="run on a robot: microphones, base, no simulator")
     robot.add_argument("--target-class", default="speech", choices=("speech", "music"))
     robot.add_argument("--steps", type=int, default=20, help="actions in the robot's episode (default 20)")
+    robot.add_argument("--microphones", default="capture", choices=tuple(MICROPHONES),
+                       help="capture: a microphone PortAudio sees (capture_node); audio_common: the robot's "
+                            "audio_common stream (audio_common_adapter)")
     robot.add_argument("--device", default=None, help="capture_node device (default: its params file)")
     robot.add_argument("--no-camera", action="store_true",
                        help="the robot passes no RGB-D: only controllers that read no images run")
@@ -202,7 +205,8 @@ def main(argv=None) -> int:
     interrupted = False
     try:
         for node in nodes:
-            if (node == "recorder_node" and args.no_record) or (node == "live_view_node" and args.live_view is None):
+            if ((node == "recorder_node" and args.no_record) or (node == "live_view_node" and args.live_view is None)
+                    or (node in MICROPHONES.values() and node != MICROPHONES[args.microphones])):
                 continue
             logs[node] = args.out / "logs" / f"{node}.log"
             command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
