@@ -17,8 +17,8 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
-from launch.conditions import LaunchConfigurationEquals
-from launch.substitutions import LaunchConfiguration
+from launch.conditions import IfCondition
+from launch.substitutions import EqualsSubstitution, LaunchConfiguration
 from launch_ros.actions import Node
 
 from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_REMAPS
@@ -54,7 +54,8 @@ def generate_launch_description():
     microphones = [DeclareLaunchArgument("microphones", default_value="capture", choices=list(MICROPHONES),
                                          description="capture: a microphone PortAudio sees (capture_node); "
                                                      "audio_common: the robot's audio_common stream")]
-    source = {node: LaunchConfigurationEquals("microphones", choice) for choice, node in MICROPHONES.items()}
+    source = {node: IfCondition(EqualsSubstitution(LaunchConfiguration("microphones"), choice))
+              for choice, node in MICROPHONES.items()}
     nodes = {name: Node(package="m2h_ros", executable=name, name=name, output="screen",
                         parameters=[params[name], overrides.get(name, {})], remappings=list(ROBOT_REMAPS.get(name, ())),
                         condition=source.get(name))
