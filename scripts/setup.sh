@@ -70,7 +70,7 @@ fi
 # ros-drivers' audio_common_msgs (for the audio_common adapter) is built here only where no ROS install
 # has it (a distro's ros-jazzy-audio-common-msgs is used as it is); this workspace's own build is not asked.
 PACKAGES=(msg_defs .)
-OTHERS=$(printf '%s' "${AMENT_PREFIX_PATH:-}" | tr ':' '\n' | grep -v "^$WS" | paste -sd: -)
+OTHERS=$(printf '%s' "${AMENT_PREFIX_PATH:-}" | tr ':' '\n' | { grep -v "^$WS" || true; } | paste -sd: -)
 if ! AMENT_PREFIX_PATH="$VENV${OTHERS:+:$OTHERS}" "$VENV/bin/python" -c \
     'from ament_index_python.packages import get_package_prefix; get_package_prefix("audio_common_msgs")' 2>/dev/null; then
   PACKAGES+=(third_party/audio_common_msgs)
