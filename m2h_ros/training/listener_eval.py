@@ -31,16 +31,16 @@ import numpy as np
 import scipy.signal
 import torch
 from pystoi import stoi
-from tqdm import tqdm
 
 from m2h_ros.core.audio.metrics import si_sdr
-from m2h_ros.core.audio.scoring import StepTruth, deployable_reference
+from m2h_ros.core.audio.scoring import deployable_reference
 from m2h_ros.core.audio.stft import from_slices, masked_mixture, rebuild_mixture_phase, stft, to_slices
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import Episode
 from m2h_ros.errors import ConfigError
 from m2h_ros.models.checkpoint import LoadedSeparator
+from m2h_ros.training.passive_eval import step_truth, step_zero_batches
 
 EARLY_S = 0.05
 REFERENCES = ("early", "as_heard")
@@ -75,14 +75,9 @@ def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], libr
     env = BatchEnv(episodes, library, n_envs=n_envs, config=env_config, autoreset=False)
     loaded.separator.eval()
     try:
-        for first in tqdm(range(0, len(episodes), n_envs), desc="listener eval", unit="batch", disable=not progress):
-            rows = np.arange(first, min(first + n_envs, len(episodes)))
-            slots = np.concatenate([rows, np.full(n_envs - len(rows), rows[0])])  # pad a short last batch
-            obs, info = env.reset(episodes=[episodes[i] for i in slots])
-            keep = slice(0, len(rows))
+        for rows, keep, obs, info in step_zero_batches(env, episodes, desc="listener eval", progress=progress):
             mixture = obs["audio"][keep]
-            truth = StepTruth(target_monaural=info["target_monaural"][keep],
-                              target_binaural=info["target_binaural"][keep])
+            truth = step_truth(info, keep)
             references = {"early": early_image(truth.target_monaural, env.target_rirs(range(len(rows))),
                                                info["target_delay"][keep], sample_rate=rate),
                           "as_heard": deployable_reference(truth)}

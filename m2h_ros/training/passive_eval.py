@@ -28,7 +28,7 @@ the separator closes.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +61,24 @@ def oracle_magnitudes(mixture: np.ndarray, truth: StepTruth, n_sources: np.ndarr
 ORACLE_REFERENCE = {"si_sdr": "dry", "stft_distance": "dry", "si_sdr_mixture_phase": "heard"}
 
 
+def step_zero_batches(env: BatchEnv, episodes: Sequence[Episode], *, desc: str,
+                      progress: bool) -> Iterator[tuple[np.ndarray, slice, dict, dict]]:
+    """Resets ``env`` on each batch of ``episodes`` in turn: ``(rows, keep, obs, info)``, where ``rows`` are
+    the batch's episode indices and ``obs[...][keep]`` their slots (a short last batch is padded with
+    its first episode, whose extra slots ``keep`` leaves out)."""
+    n_envs = env.n_envs
+    for first in tqdm(range(0, len(episodes), n_envs), desc=desc, unit="batch", disable=not progress):
+        rows = np.arange(first, min(first + n_envs, len(episodes)))
+        slots = np.concatenate([rows, np.full(n_envs - len(rows), rows[0])])
+        obs, info = env.reset(episodes=[episodes[i] for i in slots])
+        yield rows, slice(0, len(rows)), obs, info
+
+
+def step_truth(info: dict, keep: slice) -> StepTruth:
+    """The ground truth of a reset's kept slots."""
+    return StepTruth(target_monaural=info["target_monaural"][keep], target_binaural=info["target_binaural"][keep])
+
+
 def evaluate_passive(loaded: LoadedSeparator, episodes: Sequence[Episode], library: SoundLibrary, *,
                      env_config: EnvConfig | None = None, n_envs: int = 16, rir_cache_dir: Path | None = None,
                      progress: bool = True) -> dict[str, dict[str, np.ndarray]]:
@@ -77,14 +95,9 @@ def evaluate_passive(loaded: LoadedSeparator, episodes: Sequence[Episode], libra
                    autoreset=False)
     loaded.separator.eval()
     try:
-        for first in tqdm(range(0, len(episodes), n_envs), desc="passive eval", unit="batch", disable=not progress):
-            rows = np.arange(first, min(first + n_envs, len(episodes)))
-            slots = np.concatenate([rows, np.full(n_envs - len(rows), rows[0])])  # pad a short last batch
-            obs, info = env.reset(episodes=[episodes[i] for i in slots])
-            keep = slice(0, len(rows))
+        for rows, keep, obs, info in step_zero_batches(env, episodes, desc="passive eval", progress=progress):
             mixture = obs["audio"][keep]
-            truth = StepTruth(target_monaural=info["target_monaural"][keep],
-                              target_binaural=info["target_binaural"][keep])
+            truth = step_truth(info, keep)
             n_sources = np.array([len(episodes[i].source_nodes) for i in rows])
             spec = stft(mixture, config=loaded.stft)
             sliced = torch.from_numpy(np.ascontiguousarray(to_slices(np.abs(spec), n_slices=loaded.stft.n_freq_slices)))
