@@ -9,9 +9,7 @@ live_view:=true, live_view_node also serves the run to Foxglove (params/live_vie
 ws://127.0.0.1:8765).
 """
 
-import os
 
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
@@ -19,7 +17,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from m2h_ros.node_configs import NODE_CONFIGS
-from m2h_ros.ros.launching import Argument, declare, dds_profile, exit_handler, parameters, run_directory
+from m2h_ros.ros.launching import Argument, declare, dds_profile, exit_handler, node_settings, run_directory
 
 NODES = NODE_CONFIGS  # node -> its config dataclass, in start order
 OPTIONAL = {"live_view_node": "live_view"}  # node -> the argument that starts it
@@ -45,10 +43,7 @@ ARGUMENTS = (
 
 
 def generate_launch_description():
-    share = get_package_share_directory("m2h_ros")
-    params = {name: os.path.join(share, "params", f"{name}.yaml") for name in NODES}
-    configs = {name: config.from_yaml(params[name], name) for name, config in NODES.items()}
-    overrides = parameters(ARGUMENTS, configs)
+    share, params, configs, overrides = node_settings(NODES, ARGUMENTS)
     output = LaunchConfiguration("output")  # the run directory, not the bag itself
     overrides["recorder_node"]["output"] = [output, "/bag"]  # a list of text and substitutions: one string
     overrides["evaluator_node"] = {"output_dir": [output, "/scores"]}

@@ -12,9 +12,7 @@ that read no images (the training-free baselines) and refuses the others at star
 when the episode's last step is out (exit 0) or when any node exits (exit 1, naming it).
 """
 
-import os
 
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
@@ -22,7 +20,7 @@ from launch.substitutions import EqualsSubstitution, LaunchConfiguration
 from launch_ros.actions import Node
 
 from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_REMAPS
-from m2h_ros.ros.launching import Argument, dds_profile, declare, exit_handler, parameters, run_directory
+from m2h_ros.ros.launching import Argument, dds_profile, declare, exit_handler, node_settings, run_directory
 
 NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
 ARGUMENTS = (
@@ -42,10 +40,7 @@ ARGUMENTS = (
 
 
 def generate_launch_description():
-    share = get_package_share_directory("m2h_ros")
-    params = {name: os.path.join(share, "params", f"{name}.yaml") for name in NODES}
-    configs = {name: config.from_yaml(params[name], name) for name, config in NODES.items()}
-    overrides = parameters(ARGUMENTS, configs)
+    share, params, configs, overrides = node_settings(NODES, ARGUMENTS)
     overrides["recorder_node"]["output"] = [LaunchConfiguration("output"), "/bag"]
     # One camera and one target class for every node that needs them.
     overrides["controller_node"]["camera"] = overrides["episode_driver"]["camera"]

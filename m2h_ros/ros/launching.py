@@ -72,6 +72,18 @@ def parameters(arguments: tuple[Argument, ...], configs: dict[str, Config]) -> d
     return out
 
 
+def node_settings(nodes: dict[str, type[Config]], arguments: tuple[Argument, ...]
+                  ) -> tuple[str, dict[str, str], dict[str, Config], dict[str, dict[str, ParameterValue]]]:
+    """The installed package's share folder, each node's params file there, the config that file sets,
+    and the launch arguments' overrides (:func:`parameters`)."""
+    from ament_index_python.packages import get_package_share_directory  # looked up when a launch file runs
+
+    share = get_package_share_directory("m2h_ros")
+    params = {name: os.path.join(share, "params", f"{name}.yaml") for name in nodes}
+    configs = {name: config.from_yaml(params[name], name) for name, config in nodes.items()}
+    return share, params, configs, parameters(arguments, configs)
+
+
 def dds_profile(share: str | Path) -> list[SetEnvironmentVariable]:
     """The Fast DDS profile env.sh and run_pipeline.py set (50 ms heartbeats repair lost fragments of
     the large step messages), unless the environment names one already."""
