@@ -1,6 +1,6 @@
 """The product speaks of the software, not of how it was made: no work-period numbers, folder suffixes or
 internal issue numbers in any tracked file (code, docs, params, tests, result folders, the shipped
-checkpoints' stored metadata)."""
+checkpoints' stored metadata), and every docs/ path that code or docs name exists."""
 
 import re
 import subprocess
@@ -19,6 +19,9 @@ HISTORY = re.compile(
 OTHER_PROJECT = re.compile(r"[\w.-]+/[\w.-]+(#\d+|/issues/\d+)|github\.com", re.IGNORECASE)
 # Compressed or media files whose bytes cannot hold readable text.
 SKIP_SUFFIXES = {".png", ".jpg", ".jpeg", ".gif", ".mp4", ".wav", ".flac", ".npy", ".npz", ".mcap", ".gz", ".zip"}
+DOCS_PATH = re.compile(r"""(?<![\w/.-])docs/[^\s`'"()\[\]|,;]+""")
+IN_COMMIT = re.compile(r"\bcommit `?[0-9a-f]{7,40}\b")
+BUILT = ("docs/_build",)  # written by the docs build, ignored by git
 THIS_FILE = Path(__file__).resolve().relative_to(REPO_DIR).as_posix()
 
 
@@ -43,8 +46,7 @@ def history_hits(text: str) -> list[str]:
 
 
 def test_the_patterns_find_history_and_pass_the_product():
-    # Built from parts, so this file does not hold what it looks for (the repository's own grep stays empty).
-    for diary in ("as measured in session " + "12", "runs/nav_fromq_s" + "31/policy.pt", "switch_time_val_session10",
+    for diary in ("as measured in session 12", "runs/nav_fromq_s31/policy.pt", "switch_time_val_session10",
                   "fixed for issue 9", "on the VM of that day"):
         assert history_hits(diary), diary
     for product in ("a session of the ROS graph", "_s10x", "pcm-s16", "rosbag2 issue ros2/rosbag2#1234",
@@ -63,3 +65,30 @@ def test_no_tracked_file_speaks_of_how_it_was_made(files):
         if hits:
             found[path] = hits[:3]
     assert not found, "work-period references:\n" + "\n".join(f"{p}: {h}" for p, hs in found.items() for h in hs)
+
+
+def _named_docs_paths(text: str) -> set[str]:
+    names = set()
+    for line in text.splitlines():
+        if IN_COMMIT.search(line):
+            continue  # a path as a named commit holds it (git show COMMIT:PATH), not in today's tree
+        for match in DOCS_PATH.finditer(line):
+            name = match.group(0).split("#", 1)[0].rstrip(".:/")
+            if not any(c in name for c in "<>*{}$") and not name.startswith(BUILT):
+                names.add(name)
+    return names
+
+
+def test_every_docs_path_named_exists(files):
+    missing = {}
+    for path in files:
+        if Path(path).suffix.lower() in SKIP_SUFFIXES | {".pt", ".csv"}:
+            continue
+        try:
+            text = (REPO_DIR / path).read_text()
+        except UnicodeDecodeError:
+            continue
+        gone = sorted(n for n in _named_docs_paths(text) if not (REPO_DIR / n).exists())
+        if gone:
+            missing[path] = gone
+    assert not missing, "docs paths that do not exist:\n" + "\n".join(f"{p}: {g}" for p, g in missing.items())
