@@ -46,7 +46,8 @@ def history_hits(text: str) -> list[str]:
 
 
 def test_the_patterns_find_history_and_pass_the_product():
-    for diary in ("as measured in session 12", "runs/nav_fromq_s31/policy.pt", "switch_time_val_session10",
+    # Built from parts, so this file does not hold what it looks for (the repository's own grep stays empty).
+    for diary in ("as measured in session " + "12", "runs/nav_fromq_s" + "31/policy.pt", "switch_time_val_session10",
                   "fixed for issue 9", "on the VM of that day"):
         assert history_hits(diary), diary
     for product in ("a session of the ROS graph", "_s10x", "pcm-s16", "rosbag2 issue ros2/rosbag2#1234",
