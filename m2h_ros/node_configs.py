@@ -170,9 +170,10 @@ class EpisodeDriverConfig(Config):
 
 @dataclass(frozen=True)
 class AudioCommonAdapterConfig(Config):
-    audio_topic: str = setting("audio_stamped", "audio_common_msgs/AudioDataStamped stream to read (ros-drivers' "
-                               "audio_capture publishes it with format:=wave)")
-    info_topic: str = setting("audio_info", "audio_common_msgs/AudioInfo of that stream: channels, rate, "
+    audio_topic: str = setting("audio/audio_stamped", "audio_common_msgs/AudioDataStamped stream to read "
+                               "(ros-drivers' audio_capture publishes it with format:=wave; its launch files "
+                               "run it in the namespace audio)")
+    info_topic: str = setting("audio/audio_info", "audio_common_msgs/AudioInfo of that stream: channels, rate, "
                               "sample format; frames wait for it")
     channels: tuple[int, ...] = setting((0, 1), "stream channels to publish, 0-based, in this order (the "
                                         "separator takes two: left ear, right ear)")

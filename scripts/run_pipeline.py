@@ -38,8 +38,9 @@ from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT
 ROOT = Path(__file__).resolve().parents[1]
 # Start order: the live view and the recorder first, so they hear every topic from its first message.
 NODES = tuple(NODE_CONFIGS)
-STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "base_node", "capture_node", "recorder_node",
-              "live_view_node")
+# Stop order: the recorder and the live view last, so they keep every message the others sent.
+STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "base_node", "capture_node",
+              "audio_common_adapter", "recorder_node", "live_view_node")
 LIVE_VIEW_PORT = 8765  # Foxglove's default
 STOP_TIMEOUT_S = 20.0
 
@@ -229,9 +230,9 @@ def main(argv=None) -> int:
         if finisher in procs:
             stop(procs[finisher])
     finally:
-        for node in STOP_ORDER:
-            if node in procs:
-                stop(procs[node])
+        unlisted = [n for n in procs if n not in STOP_ORDER and n != finisher]  # before the recorder
+        for node in unlisted + [n for n in STOP_ORDER if n in procs]:
+            stop(procs[node])
         if finisher in procs:
             stop(procs[finisher])
     elapsed = time.monotonic() - started

@@ -1,5 +1,7 @@
 """The m2h_msgs definitions, registered with rosbags so recorded runs decode without ROS installed, and
 the released definitions of the standard types a bag carries whose packages the PyPI wheels lack.
+Any other type (a robot's drivers publish their own) is read from its installed package's
+``share/<package>/msg/<Name>.msg`` on ``AMENT_PREFIX_PATH``, as rosbag2 finds it, when a bag first needs it.
 
 Those are pinned by their RIHS01 type hash (the hash the released Jazzy package's rosidl build gives; the
 test suite recomputes it from the released .msg text with rosidl's own generator): a bag written here is
@@ -13,6 +15,7 @@ import os
 from functools import lru_cache
 from pathlib import Path
 
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 from rosbags.typesys.store import Typestore
 
@@ -71,3 +74,46 @@ def typestore() -> Typestore:
             raise BagError(f"{name}: this definition hashes to {store.hash_rihs01(name)}, the released "
                            f"package's is {pinned}; bags would not match it")
     return store
+
+
+def installed_msg_file(msgtype: str) -> Path | None:
+    """``share/<package>/msg/<Name>.msg`` of ``<package>/msg/<Name>`` in the first prefix of
+    ``AMENT_PREFIX_PATH`` that installs it, else None."""
+    package, kind, name = (msgtype.split("/") + ["", ""])[:3]
+    if kind != "msg" or not package or not name:
+        return None
+    for prefix in filter(None, os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)):
+        path = Path(prefix) / "share" / package / "msg" / f"{name}.msg"
+        if path.is_file():
+            return path
+    return None
+
+
+def _referenced(field: tuple) -> list[str]:
+    """The message type names a rosbags field description refers to."""
+    kind, detail = field
+    if kind == Nodetype.NAME:
+        return [detail]
+    if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+        return _referenced(detail[0])
+    return []
+
+
+def register_installed(store: Typestore, msgtype: str) -> None:
+    """Register ``msgtype`` with ``store`` from its installed definition, with every type it refers to
+    that the store lacks; BagError naming the first one that no installed package defines."""
+    found: dict = {}
+    pending = [msgtype]
+    while pending:
+        name = pending.pop()
+        if name in store.types or name in found:
+            continue
+        path = installed_msg_file(name)
+        if path is None:
+            needed = "" if name == msgtype else f" (needed by {msgtype})"
+            raise BagError(f"unknown message type {name!r}{needed}: not a Jazzy standard type and no installed "
+                           f"package on AMENT_PREFIX_PATH has its .msg file")
+        types = get_types_from_msg(path.read_text(), name)
+        found.update(types)
+        pending += [ref for _, fields in types.values() for _, field in fields for ref in _referenced(field)]
+    store.register(found)

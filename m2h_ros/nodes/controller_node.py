@@ -22,6 +22,7 @@ from m2h_ros import topics  # noqa: E402
 from m2h_ros.agents.base import ControllerObservation, SingleEpisode  # noqa: E402
 from m2h_ros.agents.registry import TRAINING_FREE, make_controller  # noqa: E402
 from m2h_ros.core.audio.stft import DEFAULT_STFT  # noqa: E402
+from m2h_ros.core.robot.images import fit_depth, fit_rgb  # noqa: E402
 from m2h_ros.core.world.episodes import STOP  # noqa: E402
 from m2h_ros.errors import ConfigError  # noqa: E402
 from m2h_ros.node_configs import ControllerConfig  # noqa: E402
@@ -67,9 +68,10 @@ class ControllerNode(Node):
             subscribe(Spectrogram, topic, lambda m, part=part, kind=kind, shape=shape: self.assembler.add(
                 (m.episode_id, m.step), part, convert.spectrogram_from_msg(m, kind=kind, shape=shape)))
         if camera:
-            for topic, part in ((topics.RGB, "rgb"), (topics.DEPTH, "depth")):
-                subscribe(Image, topic, lambda m, part=part: self.assembler.add_stamped(
-                    convert.nanoseconds_of(m.header.stamp), part, convert.image_from_msg(m)))
+            # A robot camera's images of any size become the simulator's (core.robot.images).
+            for topic, part, fit in ((topics.RGB, "rgb", fit_rgb), (topics.DEPTH, "depth", fit_depth)):
+                subscribe(Image, topic, lambda m, part=part, fit=fit: self.assembler.add_stamped(
+                    convert.nanoseconds_of(m.header.stamp), part, fit(convert.image_from_msg(m))))
         self.episode_id: str | None = None
         self.stopped = False  # far-target: the last command was Stop, so the next step is the last
         self.get_logger().info(f"ready: controller {self.controller.name}")

@@ -6,8 +6,10 @@ base reported the move of step k (`motion_result`), so no step's audio mixes a m
 still. Each step goes out as the simulator's would: the frame on `audio` with this episode's id and the
 step number, and, stamped like it, the robot's latest odometry on `step/odom` and (camera: true) its
 latest RGB and depth images on `step/camera/...`, which the controller binds to the step by stamp.
-`episode` (latched) carries the target class and the episode length. The node exits 0 once the last
-step (steps) is out, or when the far-target controller's Stop has been carried out."""
+`episode` (latched) carries the target class and the episode length. The last step is step `steps`, or
+the one after the far-target controller's Stop was carried out; the node exits 0 once the separator has
+published its audio for that step (`separator/audio`, the estimate a listener gets), so a run stopped
+then has every step's estimate."""
 
 from __future__ import annotations
 
@@ -50,6 +52,7 @@ class EpisodeDriver(Node):
         subscribe(MotionResult, topics.MOTION_RESULT, self.on_result)
         subscribe(MotionCommand, topics.COMMAND, self.on_command)
         subscribe(Odometry, topics.ODOM, self.on_odom, qos_profile_sensor_data)
+        subscribe(BinauralAudio, topics.SEPARATED_AUDIO, self.on_separated)
         self.images: dict[str, Image] = {}
         self.pub_images = {}
         if cfg.camera:
@@ -61,6 +64,7 @@ class EpisodeDriver(Node):
         self.ready_after_ns = 0  # the next step's frame must start at or after this capture time
         self.waiting_since: float | None = None  # monotonic time the last step went out
         self.stopped = False  # the controller sent Stop (far-target): its move ends the episode
+        self.last_step: int | None = None  # set once the episode's last step is out
         self.create_timer(TICK_S, self.tick)
         info = EpisodeInfo(episode_id=cfg.episode_id, task=cfg.task, split="robot", scene_id="robot",
                            scenario="any", target_class=cfg.target_class, source_classes=[cfg.target_class],
@@ -103,9 +107,13 @@ class EpisodeDriver(Node):
             publisher.publish(image)
         self.get_logger().info(f"step {self.step} out")
         if self.step >= self.config.steps or (self.stopped and self.step > 0):
-            self.get_logger().info(f"done: {self.step + 1} observations")
-            raise RunFinished()
+            self.last_step = self.step
         self.waiting_since = time.monotonic()
+
+    def on_separated(self, msg: BinauralAudio) -> None:
+        if self.last_step is not None and (msg.episode_id, msg.step) == (self.config.episode_id, self.last_step):
+            self.get_logger().info(f"done: {self.last_step + 1} observations, each separated")
+            raise RunFinished()
 
     def on_result(self, msg: MotionResult) -> None:
         if msg.episode_id != self.config.episode_id or msg.step != self.step or self.waiting_since is None:
@@ -116,9 +124,13 @@ class EpisodeDriver(Node):
         self.waiting_since = None
 
     def tick(self) -> None:
-        if self.waiting_since is not None and time.monotonic() - self.waiting_since > self.config.step_timeout_s:
-            raise PipelineError(f"no motion_result for step {self.step} within {self.config.step_timeout_s:g} s: "
-                                "the controller sent no command or the base did not report the move")
+        if self.waiting_since is None or time.monotonic() - self.waiting_since <= self.config.step_timeout_s:
+            return
+        if self.last_step is not None:
+            raise PipelineError(f"no {topics.SEPARATED_AUDIO} for the last step {self.last_step} within "
+                                f"{self.config.step_timeout_s:g} s: the separator did not answer it")
+        raise PipelineError(f"no motion_result for step {self.step} within {self.config.step_timeout_s:g} s: "
+                            "the controller sent no command or the base did not report the move")
 
 
 def main(args=None):

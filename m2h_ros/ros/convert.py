@@ -127,15 +127,24 @@ def depth_msg(depth: np.ndarray, *, stamp_ns: int) -> Image:
 
 
 def image_from_msg(msg: Image) -> np.ndarray:
-    """rgb8 -> (H, W, 3) uint8; 32FC1 -> (H, W) float32."""
-    kinds = {"rgb8": (np.uint8, 3), "32FC1": (np.dtype("<f4"), 1)}
+    """rgb8 / bgr8 -> (H, W, 3) uint8 in RGB order; 32FC1 (metres) / 16UC1 (millimetres, as RealSense and
+    OpenNI drivers publish depth) -> (H, W) float32 metres. Rows may be padded (``step``)."""
+    kinds = {"rgb8": ("u1", 3), "bgr8": ("u1", 3), "32FC1": ("f4", 1), "16UC1": ("u2", 1)}
     if msg.encoding not in kinds:
         raise PipelineError(f"image encoding {msg.encoding!r} is not one of {sorted(kinds)}")
-    dtype, channels = kinds[msg.encoding]
-    values = np.frombuffer(msg.data, dtype)
-    if values.size != msg.height * msg.width * channels:
-        raise PipelineError(f"{msg.encoding} image of {msg.height}x{msg.width} holds {values.size} values")
-    return values.reshape(msg.height, msg.width, channels) if channels == 3 else values.reshape(msg.height, msg.width)
+    code, channels = kinds[msg.encoding]
+    dtype = np.dtype(code).newbyteorder(">" if msg.is_bigendian else "<")
+    row_bytes = msg.width * channels * dtype.itemsize
+    if msg.step < row_bytes or len(msg.data) != msg.step * msg.height:
+        raise PipelineError(f"{msg.encoding} image of {msg.height}x{msg.width} (step {msg.step}) holds "
+                            f"{len(msg.data)} bytes")
+    rows = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.step)[:, :row_bytes]
+    values = np.ascontiguousarray(rows).view(dtype).reshape(msg.height, msg.width, channels)
+    if msg.encoding == "bgr8":
+        return values[..., ::-1]
+    if channels == 3:
+        return values
+    return values[..., 0].astype(np.float32) / (1000.0 if msg.encoding == "16UC1" else 1.0)
 
 
 def camera_info_msg(config: CameraConfig, *, stamp_ns: int) -> CameraInfo:

@@ -1,7 +1,8 @@
 """Robot mode end to end (scripts/run_pipeline.py --robot): a virtual microphone through the real ALSA
-stack, capture_node, the episode driver, the separator, the shipped Move2Hear controller with a test
-camera's RGB-D, base_node on the test-only kinematic base, and the recorder; no simulator, no
-evaluator. Without a camera, a controller that reads images is refused naming why."""
+stack and capture_node, or an audio_common stream through audio_common_adapter; the episode driver, the
+separator, the shipped Move2Hear controller with a test camera's RGB-D, base_node on the test-only
+kinematic base, and the recorder; no simulator, no evaluator. Without a camera, a controller that reads
+images is refused naming why."""
 
 import os
 import subprocess
@@ -18,27 +19,32 @@ pytestmark = pytest.mark.graph
 RATE = 48000
 HERE = Path(__file__).parent
 STEPS = 2
+NODES = ("episode_driver", "separator_node", "controller_node", "base_node", "recorder_node")
 
 
-def robot_run(tmp_path, *args: str, timeout: float = 300):
+def robot_run(tmp_path, *args: str, env: dict | None = None, timeout: float = 300):
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE", **(env or {})}  # no data: robot mode simulates nothing
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--robot", "--out",
+                           str(tmp_path / "run"), "--steps", str(STEPS), *args],
+                          capture_output=True, text=True, timeout=timeout, env=env, cwd=ROOT)
+
+
+def mic_run(tmp_path, *args: str, timeout: float = 300):
+    """Robot mode with capture_node on a virtual microphone."""
     rng = np.random.default_rng(3)
     t = np.arange(RATE * 120) / RATE  # longer than the run: the microphone never falls silent
     ears = np.stack([np.sin(2 * np.pi * 220 * t) * (1 + 0.5 * np.sin(2 * np.pi * 3 * t)),
                      np.sin(2 * np.pi * 330 * t)], axis=1) * 0.2 + 0.05 * rng.standard_normal((t.size, 2))
     mic = virtual_mic(tmp_path / "mic", ears.astype(np.float32), RATE)
-    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE", **mic.env()}  # no data: robot mode simulates nothing
-    return subprocess.run([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--robot", "--out",
-                           str(tmp_path / "run"), "--steps", str(STEPS), "--device", mic.name,
-                           "--set", f"capture_node.sample_rate={RATE}", *args],
-                          capture_output=True, text=True, timeout=timeout, env=env, cwd=ROOT)
+    return robot_run(tmp_path, "--device", mic.name, "--set", f"capture_node.sample_rate={RATE}", *args,
+                     env=mic.env(), timeout=timeout)
 
 
-def test_the_robot_graph_runs_an_episode_with_move2hear_on_the_test_base(processes, tmp_path):
-    processes.start([sys.executable, str(HERE / "kinematic_base.py")])
-    processes.start([sys.executable, str(HERE / "camera_publisher.py")])
-    result = robot_run(tmp_path)
+def check_episode(result, tmp_path, microphones: str) -> dict:
+    """The run's episode: every node exited 0, steps 0..STEPS each answered by Move2Hear and carried
+    out by the base, each later step captured after the move before it ended. Returns the bag's messages."""
     assert result.returncode == 0, result.stdout + result.stderr
-    for node in ("capture_node", "episode_driver", "separator_node", "controller_node", "base_node", "recorder_node"):
+    for node in (microphones, *NODES):
         assert f"[run]   {node:16s} exit 0" in result.stdout
     messages = bag_messages(tmp_path / "run" / "bag")
     assert "/ground_truth/target" not in messages and "/scores/step" not in messages  # no sim, no evaluator
@@ -56,10 +62,32 @@ def test_the_robot_graph_runs_an_episode_with_move2hear_on_the_test_base(process
     assert len(messages["/mic/audio"]) > STEPS + 1  # the stream went on between steps
     assert len(messages["/separator/audio"]) == STEPS + 1
     assert [m.header.stamp for m in messages["/step/odom"]] == [m.header.stamp for m in messages["/audio"]]
+    return messages
+
+
+def test_the_robot_graph_runs_an_episode_with_move2hear_on_the_test_base(processes, tmp_path):
+    processes.start([sys.executable, str(HERE / "kinematic_base.py")])
+    processes.start([sys.executable, str(HERE / "camera_publisher.py")])
+    check_episode(mic_run(tmp_path), tmp_path, "capture_node")
+
+
+def test_an_audio_common_stream_and_a_driver_sized_camera_run_the_same_episode(processes, tmp_path):
+    """ros-drivers' audio_capture as its capture_wave launch file runs it, and a RealSense-style camera:
+    640 x 480 bgr8 colour, 16UC1 millimetre depth (the controller fits both to its 128 x 128 images)."""
+    processes.start([sys.executable, str(HERE / "kinematic_base.py")])
+    processes.start([sys.executable, str(HERE / "camera_publisher.py"), "--width", "640", "--height", "480",
+                     "--driver"])
+    processes.start([sys.executable, str(HERE / "audio_capture_stand_in.py"), "--rate", str(RATE)])
+    messages = check_episode(robot_run(tmp_path, "--microphones", "audio_common"), tmp_path, "audio_common_adapter")
+    assert "/audio/audio_stamped" in messages and "/audio/audio_info" in messages  # the driver's stream, recorded
+    # The controller answered every step from the driver's images as they came
+    rgb, depth = messages["/step/camera/rgb/image_raw"], messages["/step/camera/depth/image_raw"]
+    assert {(m.encoding, m.width, m.height) for m in rgb} == {("bgr8", 640, 480)} and len(rgb) >= STEPS
+    assert {(m.encoding, m.width, m.height) for m in depth} == {("16UC1", 640, 480)} and len(depth) >= STEPS
 
 
 def test_without_a_camera_a_controller_that_reads_images_is_refused(tmp_path):
-    result = robot_run(tmp_path, "--no-camera", timeout=180)
+    result = mic_run(tmp_path, "--no-camera", timeout=180)
     assert result.returncode == 1
     assert "controller_node exited during the run" in result.stdout
     assert "controller 'move2hear' reads camera images and camera is false" in result.stdout

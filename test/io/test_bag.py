@@ -4,8 +4,11 @@ same type hash as rosidl generated; broken bags fail with BagError."""
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
 from msg_values import differences, from_any, sample_values, to_rosbags
 
 from m2h_ros.errors import BagError
@@ -80,8 +83,49 @@ def test_corrupt_bag(tmp_path):
 
 
 def test_unknown_type_is_refused(tmp_path):
-    with BagWriter(tmp_path / "bag") as writer, pytest.raises(BagError, match="unknown message type"):
+    with BagWriter(tmp_path / "bag") as writer, pytest.raises(BagError, match="/x: unknown message type"):
         writer.write_raw("/x", "nope_msgs/msg/Nope", 0, b"")
+
+
+def installed_package(prefix: Path, package: str, files: dict[str, str]) -> None:
+    folder = prefix / "share" / package / "msg"
+    folder.mkdir(parents=True)
+    for name, text in files.items():
+        (folder / f"{name}.msg").write_text(text)
+
+
+def test_a_robots_own_type_is_read_from_its_installed_package(tmp_path, monkeypatch):
+    """A driver's type (not a Jazzy standard one) comes from share/<package>/msg on AMENT_PREFIX_PATH,
+    with the types it refers to; an independent reader decodes it from the bag's own schema."""
+    installed_package(tmp_path / "robot", "robot_msgs", {
+        "Reading": "std_msgs/Header header\nPart[] parts\nPart[2] pair\nuint8[] data\n",
+        "Part": "string name\nfloat32 value\n"})
+    installed_package(tmp_path / "later", "robot_msgs", {"Part": "float64 shadowed\n"})  # the first prefix wins
+    monkeypatch.setenv("AMENT_PREFIX_PATH", f"{tmp_path / 'robot'}:{tmp_path / 'later'}")
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with BagWriter(tmp_path / "bag", typestore=store) as writer:
+        writer.add_topic("/reading", "robot_msgs/msg/Reading")
+        Part, Reading = store.types["robot_msgs/msg/Part"], store.types["robot_msgs/msg/Reading"]
+        Header, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+        message = Reading(header=Header(stamp=Time(sec=3, nanosec=4), frame_id="mic"),
+                          parts=[Part(name="left", value=0.5)], pair=[Part(name="a", value=1.0), Part(name="b", value=2.0)],
+                          data=np.arange(5, dtype=np.uint8))
+        writer.write("/reading", "robot_msgs/msg/Reading", 7, message)
+    with AnyReader([tmp_path / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        (connection, _, raw), = reader.messages()
+        got = reader.deserialize(raw, connection.msgtype)
+    assert (got.header.frame_id, got.header.stamp.sec) == ("mic", 3)
+    assert [(p.name, p.value) for p in got.parts + got.pair] == [("left", 0.5), ("a", 1.0), ("b", 2.0)]
+    assert got.data.tolist() == [0, 1, 2, 3, 4]
+
+
+def test_a_type_whose_parts_no_package_defines_is_named(tmp_path, monkeypatch):
+    installed_package(tmp_path / "robot", "robot_msgs", {"Reading": "Missing part\n"})
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "robot"))
+    with BagWriter(tmp_path / "bag", typestore=get_typestore(Stores.ROS2_JAZZY)) as writer, \
+            pytest.raises(BagError, match=r"/r: unknown message type 'robot_msgs/msg/Missing' \(needed by "
+                                          r"robot_msgs/msg/Reading\)"):
+        writer.add_topic("/r", "robot_msgs/msg/Reading")
 
 
 # The released .msg files, verbatim: tf2_msgs (geometry2, jazzy branch) and foxglove_msgs 3.4.3
