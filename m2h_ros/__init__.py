@@ -1,3 +1,3 @@
 """m2h_ros: active audio-visual source separation (Move2Hear) as a ROS 2 Jazzy node suite."""
 
-__version__ = "0.1.0"
+__version__ = "1.0.0"

@@ -1,5 +1,5 @@
-"""One version everywhere: package.xml, m2h_msgs' package.xml, setup.py, CITATION.cff and the newest
-CHANGELOG.md entry."""
+"""One version everywhere: package.xml, m2h_msgs' package.xml, setup.py, m2h_ros.__version__,
+CITATION.cff and the newest CHANGELOG.md entry."""
 
 import re
 from pathlib import Path
@@ -16,6 +16,7 @@ def versions() -> dict[str, str]:
     return {"package.xml": find("package.xml", r"<version>([^<]+)</version>"),
             "msg_defs/package.xml": find("msg_defs/package.xml", r"<version>([^<]+)</version>"),
             "setup.py": find("setup.py", r"^\s*version=\"([^\"]+)\""),
+            "m2h_ros/__init__.py": find("m2h_ros/__init__.py", r"^__version__ = \"([^\"]+)\"$"),
             "CITATION.cff": find("CITATION.cff", r"^version:\s*\"?([^\"\s]+)\"?\s*$"),
             "CHANGELOG.md": find("CHANGELOG.md", r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$")}
 
