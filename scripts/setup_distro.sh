@@ -94,8 +94,11 @@ check_install() {  # $1: workspace
   (set +u; source "$1/env.sh"; set -u
    head -n 1 "$1/install/m2h_ros/lib/m2h_ros/sim_node" | grep -qF "$VENV_PY" ||
      die "the installed sim_node does not start with $VENV_PY"
-   python -c 'import torch; from rclpy.serialization import serialize_message
-from sensor_msgs.msg import Image; from m2h_msgs.msg import BinauralAudio
+   # CameraInfo's fixed-size arrays go through numpy's C structures in the distro-built type support.
+   python -c 'import torch; from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import CameraInfo, Image; from m2h_msgs.msg import BinauralAudio
+info = deserialize_message(serialize_message(CameraInfo(k=[float(v) for v in range(9)])), CameraInfo)
+assert list(info.k) == list(range(9)), "sensor_msgs/CameraInfo does not round-trip"
 serialize_message(Image(data=[0])); serialize_message(BinauralAudio()); import m2h_ros.nodes.sim_node' ||
      die "the venv cannot import the nodes' libraries next to the distro's ROS (see the error above)")
 }
