@@ -34,6 +34,11 @@ def test_ament_index_resolves_packages():
 def test_executable_installed(node):
     exe = Path(get_package_prefix("m2h_ros")) / "lib" / "m2h_ros" / node
     assert exe.is_file() and os.access(exe, os.X_OK)
+    # It imports its entry point directly: setuptools' own script first scans every installed package's
+    # metadata, tens of milliseconds in which a Ctrl-C printed a traceback.
+    text = exe.read_text()
+    assert text.startswith("#!") and f"from m2h_ros.nodes.entry import {node}\n" in text
+    assert "importlib" not in text and "pkg_resources" not in text
 
 
 def wait_for_line(proc, text: str, timeout: float = 20.0) -> list[str]:
