@@ -10,9 +10,9 @@ import time
 import numpy as np
 import rclpy
 from audio_common_msgs.msg import AudioData, AudioDataStamped, AudioInfo
-from rclpy.executors import ExternalShutdownException
 
 from m2h_ros.ros import convert
+from stand_in import spin_until_stopped
 
 BLOCK_S = 0.02
 INFO_EVERY_S = 5.0
@@ -53,13 +53,7 @@ def main() -> None:
     pub_info.publish(info)
     node.create_timer(INFO_EVERY_S, lambda: pub_info.publish(info))
     node.create_timer(BLOCK_S / 2, publish_due_blocks)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_stopped(node)
 
 
 if __name__ == "__main__":

@@ -7,11 +7,11 @@ import array
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from sensor_msgs.msg import Image
 
 from m2h_ros import topics
 from m2h_ros.ros import convert
+from stand_in import spin_until_stopped
 
 
 def driver_image(values: np.ndarray, encoding: str, stamp_ns: int) -> Image:
@@ -48,13 +48,7 @@ def main() -> None:
             pub_depth.publish(convert.depth_msg(depth, stamp_ns=stamp))
 
     node.create_timer(1.0 / args.hz, publish)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_stopped(node)
 
 
 if __name__ == "__main__":

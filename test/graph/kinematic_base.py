@@ -13,11 +13,11 @@ import numpy as np
 import rclpy
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
-from rclpy.executors import ExternalShutdownException
 
 from m2h_ros import topics
 from m2h_ros.core.robot.base_motion import KinematicBase
 from m2h_ros.ros import convert
+from stand_in import spin_until_stopped
 
 TICK_S = 0.005
 
@@ -60,13 +60,7 @@ def main() -> None:
     node.create_subscription(Twist if args.twist else TwistStamped, topics.CMD_VEL, on_twist, 10)
     node.create_timer(TICK_S, tick)
     node.get_logger().info("ready")
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_stopped(node)
 
 
 if __name__ == "__main__":
