@@ -26,7 +26,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.typesys.store import Typestore
 
 from m2h_ros.errors import BagError
-from m2h_ros.io.msg_defs import register_installed, typestore as m2h_typestore
+from m2h_ros.io.msg_defs import ensure_known, typestore as m2h_typestore
 
 METADATA_VERSION = 9  # rosbag2 Jazzy's metadata.yaml version
 CHUNK_SIZE = 1 << 20  # bytes of records per chunk, as rosbags and rosbag2 (mcap's default)
@@ -102,11 +102,10 @@ class BagWriter:
         them in metadata.yaml and the MCAP channel, and ``ros2 bag play`` republishes with them)."""
         if topic in self._topics:
             raise BagError(f"topic {topic} is already in the bag")
-        if msgtype not in self._typestore.types:
-            try:
-                register_installed(self._typestore, msgtype)
-            except BagError as exc:
-                raise BagError(f"topic {topic}: {exc}") from None
+        try:
+            ensure_known(self._typestore, msgtype)
+        except BagError as exc:
+            raise BagError(f"topic {topic}: {exc}") from None
         type_hash = self._typestore.hash_rihs01(msgtype)
         if msgtype not in self._schemas:
             text, _ = self._typestore.generate_msgdef(msgtype, ros_version=2)

@@ -99,9 +99,10 @@ def _referenced(field: tuple) -> list[str]:
     return []
 
 
-def register_installed(store: Typestore, msgtype: str) -> None:
-    """Register ``msgtype`` with ``store`` from its installed definition, with every type it refers to
-    that the store lacks; BagError naming the first one that no installed package defines."""
+def ensure_known(store: Typestore, msgtype: str) -> None:
+    """Make ``store`` know ``msgtype``: if it does not, register it from its installed definition, with
+    every type it refers to that the store lacks; BagError naming the first one that no installed
+    package defines."""
     found: dict = {}
     pending = [msgtype]
     while pending:

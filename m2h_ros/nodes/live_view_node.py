@@ -16,7 +16,7 @@ from rclpy.qos import DurabilityPolicy
 
 from m2h_ros.errors import LiveViewError
 from m2h_ros.io.derived import TF_STATIC, Derived
-from m2h_ros.io.msg_defs import typestore
+from m2h_ros.io.msg_defs import ensure_known, typestore
 from m2h_ros.node_configs import LiveViewConfig
 from m2h_ros.ros.introspection import adapted_qos, offered_topics
 from m2h_ros.ros.params import declare_config
@@ -60,7 +60,9 @@ class LiveViewNode(Node):
         self.get_logger().info(f"serving the graph to Foxglove on ws://{self.config.host}:{self.server.port}")
 
     def channel(self, topic: str, type_name: str) -> Channel:
-        definition = typestore().generate_msgdef(type_name, ros_version=2)[0]
+        store = typestore()
+        ensure_known(store, type_name)  # a robot driver's own type: from its installed package
+        definition = store.generate_msgdef(type_name, ros_version=2)[0]
         return Channel(topic, message_encoding="cdr", context=self.sink_context,
                        schema=Schema(name=type_name, encoding="ros2msg", data=definition.encode()))
 

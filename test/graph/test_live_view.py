@@ -1,7 +1,8 @@
 """live_view_node serves a pipeline run to a Foxglove WebSocket client (a plain `websockets` client speaking
 the protocol): every topic advertised as a ROS 2 channel with its message definition, messages that decode
-with that definition alone and equal what the recorder wrote, the derived TF tree and pcm-s16 audio;
-bound to localhost; a taken port is named."""
+with that definition alone and equal what the recorder wrote, the derived TF tree and pcm-s16 audio; a
+robot driver's own type (audio_common_msgs) with the definition from its installed package; bound to
+localhost; a taken port is named."""
 
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ SUBPROTOCOL = "foxglove.sdk.v1"  # the only one foxglove-sdk 0.30's server accep
 MESSAGE_DATA = 1  # binary opcode of a message on a subscribed channel
 # Messages the first client waits for on each topic (/tf_static is sent once, then on each subscription).
 CHECKED = {"/audio": 3, "/odom": 3, "/scores/step": 3, "/audio/pcm": 3, "/separator/audio/pcm": 3, "/tf": 3,
-           "/tf_static": 1}
+           "/tf_static": 1, "/audio/audio_stamped": 3}
 LATCHED = {"/map": 1, "/tf_static": 1, "/episode": 1}  # what a client that joins mid-episode gets at once
 
 
@@ -92,8 +93,9 @@ def recorded(bag, topic: str) -> dict[bytes, int]:
         return {bytes(data): k for k, (_, _, data) in enumerate(reader.messages(connections=conns))}
 
 
-def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir, tmp_path):
+def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir, processes, tmp_path):
     port = free_port()
+    processes.start([sys.executable, str(ROOT / "test" / "graph" / "audio_capture_stand_in.py")])
     # Free-running at 2 steps/s: two episodes last about 20 s, time for two clients to subscribe.
     run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
                             "--episodes", "2", "--controller", "random", "--mode", "free_running", "--rate", "2",
@@ -157,6 +159,10 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
     assert matched >= 1
     mono = decode["/separator/audio/pcm"](received["/separator/audio/pcm"][0])
     assert (mono.format, mono.number_of_channels, len(mono.data)) == ("pcm-s16", 1, 2 * 16000)
+    # A type the project does not define, served with the definition its installed package has
+    assert channels["/audio/audio_stamped"]["schemaName"] == "audio_common_msgs/msg/AudioDataStamped"
+    blocks = [decode["/audio/audio_stamped"](payload) for payload in received["/audio/audio_stamped"]]
+    assert all(len(b.audio.data) == 960 * 2 * 2 for b in blocks)  # 20 ms of 2 channels of S16 at 48 kHz
 
 
 def listening_addresses(port: int) -> list[str]:
