@@ -26,10 +26,11 @@ from m2h_ros.errors import PipelineError
 from m2h_ros.node_configs import EpisodeDriverConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
+from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events, wait_for_delivery
 from m2h_ros.ros.spin import RunFinished, run_node
 
 TICK_S = 0.1
+FINAL_DELIVERY_S = 2.0  # how long the last step's messages may wait for their readers' acks
 
 
 class EpisodeDriver(Node):
@@ -112,6 +113,9 @@ class EpisodeDriver(Node):
 
     def on_separated(self, msg: BinauralAudio) -> None:
         if self.last_step is not None and (msg.episode_id, msg.step) == (self.config.episode_id, self.last_step):
+            # The separator can answer within milliseconds, before the recorder has the step's odometry
+            # and images (missing from 2 of 5 bags without this wait).
+            wait_for_delivery(self, timeout_s=FINAL_DELIVERY_S)
             self.get_logger().info(f"done: {self.last_step + 1} observations, each separated")
             raise RunFinished()
 

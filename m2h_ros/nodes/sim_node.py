@@ -19,7 +19,6 @@ import time
 import numpy as np
 from m2h_msgs.msg import AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth, MotionCommand, StepScore
 from nav_msgs.msg import OccupancyGrid, Odometry
-from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from visualization_msgs.msg import MarkerArray
@@ -36,7 +35,7 @@ from m2h_ros.ros import convert
 from m2h_ros.ros.graph import missing_consumers
 from m2h_ros.ros.introspection import optional_message_class, raw_audio_publisher
 from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.qos import LATCHED, LATEST, STEP, TF, publisher_events, subscription_events
+from m2h_ros.ros.qos import LATCHED, LATEST, STEP, TF, publisher_events, subscription_events, wait_for_delivery
 from m2h_ros.ros.spin import RunFinished, run_node
 
 TICK_S = 0.05  # how often the node checks start-up and timeouts (answers are handled as they come)
@@ -212,22 +211,11 @@ class SimNode(Node):
             dropped = f", {self.dropped} dropped (held)" if self.config.mode == "free_running" else ""
             self.get_logger().info(f"done: {len(self.indices)} episodes, {self.steps} steps in {elapsed:.1f} s "
                                    f"({self.steps / max(elapsed, 1e-9):.1f} steps/s){dropped}")
-            self.wait_for_delivery()
+            wait_for_delivery(self, timeout_s=DELIVERY_TIMEOUT_S)
             raise RunFinished()
         self.current = self.player.start(self.indices[self.position])
         self.commands = {k: v for k, v in self.commands.items() if k[0] == self.player.episode.episode_id}
         self.publish(episode_start=True)
-
-    def wait_for_delivery(self) -> None:
-        """Before the process goes: every reliable reader has acknowledged every sample. A writer
-        destroyed first takes the samples it still had to repair with it (seen under load: the recorder
-        missed the last steps' odometry and poses while their audio had arrived)."""
-        deadline = time.monotonic() + DELIVERY_TIMEOUT_S  # one deadline for all: a gone reader costs it once
-        pending = [p.topic_name for p in self.publishers if not p.wait_for_all_acked(
-            Duration(seconds=max(deadline - time.monotonic(), 0.0)))]
-        if pending:
-            self.get_logger().warning(f"readers had not acknowledged every sample of {', '.join(pending)} "
-                                      f"after {DELIVERY_TIMEOUT_S:.0f} s; exiting all the same")
 
     def advance(self, action: int | None) -> None:
         """Apply ``action``; None holds the robot where it is (free-running, no command in time)."""

@@ -82,8 +82,8 @@ def test_an_audio_common_stream_and_a_driver_sized_camera_run_the_same_episode(p
     assert "/audio/audio_stamped" in messages and "/audio/audio_info" in messages  # the driver's stream, recorded
     # The controller answered every step from the driver's images as they came
     rgb, depth = messages["/step/camera/rgb/image_raw"], messages["/step/camera/depth/image_raw"]
-    assert {(m.encoding, m.width, m.height) for m in rgb} == {("bgr8", 640, 480)} and len(rgb) >= STEPS
-    assert {(m.encoding, m.width, m.height) for m in depth} == {("16UC1", 640, 480)} and len(depth) >= STEPS
+    assert {(m.encoding, m.width, m.height) for m in rgb} == {("bgr8", 640, 480)} and len(rgb) == STEPS + 1
+    assert {(m.encoding, m.width, m.height) for m in depth} == {("16UC1", 640, 480)} and len(depth) == STEPS + 1
 
 
 def test_without_a_camera_a_controller_that_reads_images_is_refused(tmp_path):
