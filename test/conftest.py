@@ -22,6 +22,10 @@ def pytest_configure(config):
     # One domain per test run, so parallel runs on one machine never hear each other.
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 100)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    # A suite started in the background of a non-interactive shell inherits SIGINT ignored, and so would
+    # every process it starts (an ignored signal stays ignored across exec): the tests stop them with it.
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 class Processes:

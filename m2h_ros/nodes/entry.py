@@ -10,6 +10,7 @@ at once: Python's own finalisation after an rclpy shutdown could hang in native 
 
 import importlib
 import os
+import signal
 import sys
 
 NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node",
@@ -17,6 +18,9 @@ NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "rec
 
 
 def run(node: str) -> None:
+    # Started in the background of a non-interactive shell, a process inherits SIGINT ignored; a node must
+    # still stop on it (Ctrl-C, ros2 launch's shutdown), as rclpy's own handler would make it.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         module = importlib.import_module(f"m2h_ros.nodes.{node}")
     except KeyboardInterrupt:

@@ -2,6 +2,7 @@
 `ros2 run` looks, starts with its params file, and exits cleanly on SIGINT; bad params fail loudly."""
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -88,6 +89,20 @@ def test_ctrl_c_while_a_node_is_still_importing_is_clean(processes):
         code, _, err = processes.interrupt(proc)
         assert code == 0, err
         assert "Traceback" not in err and "ready:" not in err, err
+
+
+@pytest.mark.parametrize("node", ["base_node", "separator_node"])
+def test_a_node_started_with_sigint_ignored_still_stops_on_it(node, processes):
+    """As from `ros2 run ... &` in a script: a background job of a non-interactive shell inherits SIGINT
+    ignored. base_node keeps Python's handler (no rclpy handler); the separator is still importing."""
+    exe = str(Path(get_package_prefix("m2h_ros")) / "lib" / "m2h_ros" / node)
+    proc = processes.start([exe], preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    if node == "base_node":
+        wait_for_line(proc, "ready:")
+    else:
+        time.sleep(1.0)
+    code, _, err = processes.interrupt(proc)
+    assert code == 0 and "Traceback" not in err, err
 
 
 def test_ctrl_c_the_moment_a_node_is_ready_is_clean(processes):
