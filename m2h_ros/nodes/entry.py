@@ -4,9 +4,10 @@ Each imports its node module only when called, so a Ctrl-C while the node is sti
 (seconds: torch is among its modules) ends it as quietly as one a moment later does: exit code 0, no
 traceback. The installed scripts import these entry points directly (setup.py), so the only moment
 left in which a Ctrl-C prints a traceback is Python's own start-up before the script runs (its site
-packages' .pth files: some 10 to 20 ms). Once the node has exited (run_node: its bag closed, its tables written) the process ends
-at once: Python's own finalisation after an rclpy shutdown could hang in native code for seconds
-(under ros2 launch every node was still alive 5 s after its SIGINT, until launch's SIGTERM)."""
+packages' .pth files: some 10 to 20 ms). Once the node has exited (run_node: its bag closed, its
+tables written) the process ends at once: Python's own finalisation after an rclpy shutdown could hang
+in native code for seconds (under ros2 launch every node was still alive 5 s after its SIGINT, until
+launch's SIGTERM)."""
 
 import importlib
 import os
