@@ -21,7 +21,7 @@ from m2h_ros import topics
 from m2h_ros.core.audio.display import spectrogram_image
 from m2h_ros.core.audio.scoring import score_magnitude
 from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
-from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker, write_results
+from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker, markdown_table, summarize, write_results
 from m2h_ros.node_configs import EvaluatorConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.introspection import raw_audio_publisher
@@ -120,7 +120,9 @@ class EvaluatorNode(Node):
     def destroy_node(self) -> None:
         if self.output is not None and self.results:
             paths = write_results(self.results, self.output, title="m2h_ros pipeline run")
-            print(f"evaluator: {len(self.results)} episodes scored -> {paths['markdown']}", flush=True)
+            # The table itself too: under ros2 launch this output is all a user sees of the scores.
+            print(f"evaluator: {len(self.results)} episodes scored -> {paths['markdown']}\n"
+                  f"{markdown_table(summarize(self.results))}", flush=True)
         super().destroy_node()
 
 
