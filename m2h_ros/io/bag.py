@@ -116,6 +116,10 @@ class BagWriter:
             {"offered_qos_profiles": qos_yaml(offered_qos), "topic_type_hash": type_hash})
         self._topics[topic] = _Topic(msgtype, channel_id, type_hash, list(offered_qos))
 
+    def type_hash(self, topic: str) -> str:
+        """The RIHS01 hash of the definition ``topic`` is recorded with (its MCAP schema)."""
+        return self._topics[topic].type_hash
+
     def write_raw(self, topic: str, msgtype: str, timestamp: int, data: bytes | memoryview) -> None:
         """Write serialized CDR bytes as received from a raw subscription."""
         entry = self._topics.get(topic)

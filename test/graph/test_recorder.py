@@ -130,3 +130,30 @@ def test_recorder_lists_the_offered_qos(processes, tmp_path):
     # records the same "unknown", 0).
     (offered,) = probe["offered_qos_profiles"]
     assert (offered["reliability"], offered["durability"]) == ("reliable", "transient_local")
+
+
+def test_a_definition_that_differs_from_the_publishers_is_named(processes, tmp_path):
+    """A driver's type is recorded with its installed package's definition; where that is not the one the
+    publisher was built with (here a stale AudioInfo.msg first on AMENT_PREFIX_PATH), the recorder warns,
+    naming both hashes, and still records; the matching types pass without a word."""
+    stale = tmp_path / "stale" / "share" / "audio_common_msgs" / "msg"
+    stale.mkdir(parents=True)
+    (stale / "AudioInfo.msg").write_text("uint8 channels\nuint32 sample_rate\n")
+    env = {**os.environ, "AMENT_PREFIX_PATH": f"{tmp_path / 'stale'}:{os.environ['AMENT_PREFIX_PATH']}"}
+    bag = tmp_path / "bag"
+    recorder = processes.start([ROS2RUN, "m2h_ros", "recorder_node", "--ros-args", "-p", f"output:={bag}",
+                                "-p", "discovery_period_s:=0.2"], env=env)
+    wait_for_line(recorder, "recording to")
+    driver = processes.start([sys.executable, str(Path(__file__).with_name("audio_capture_stand_in.py"))])
+    log = ""
+    for line in ("recording /audio/audio_info", "recording /audio/audio_stamped"):  # in either order
+        if line not in log:
+            log += "".join(wait_for_line(recorder, line))
+    time.sleep(0.5)
+    assert processes.interrupt(recorder)[0] == 0
+    processes.interrupt(driver)
+    assert "/audio/audio_info: the definition of audio_common_msgs/msg/AudioInfo recorded in the bag" in log, log
+    assert "a reader of the bag will misread it" in log
+    assert "/audio/audio_stamped: the definition" not in log and "/audio/audio: the definition" not in log
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert "/audio/audio_info" in {t["topic_metadata"]["name"] for t in info["topics_with_message_count"]}
