@@ -1,7 +1,8 @@
 """The m2h_msgs definitions, registered with rosbags so recorded runs decode without ROS installed, and
 the released definitions of the standard types a bag carries whose packages the PyPI wheels lack.
 Any other type (a robot's drivers publish their own) is read from its installed package's
-``share/<package>/msg/<Name>.msg`` on ``AMENT_PREFIX_PATH``, as rosbag2 finds it, when a bag first needs it.
+``share/<package>/msg/<Name>.msg`` on ``AMENT_PREFIX_PATH``, as rosbag2 finds it, when a bag first
+needs it.
 
 Those are pinned by their RIHS01 type hash (the hash the released Jazzy package's rosidl build gives; the
 test suite recomputes it from the released .msg text with rosidl's own generator): a bag written here is

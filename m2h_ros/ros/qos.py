@@ -49,7 +49,6 @@ def subscription_events(logger, topic: str) -> SubscriptionEventCallbacks:
         f"{event.last_policy_kind.name}; nothing will arrive from it"), use_default_callbacks=False)
 
 
-
 def wait_for_delivery(node, *, timeout_s: float) -> None:
     """Before the process goes: wait, at most ``timeout_s`` in all, until every reliable reader has
     acknowledged every sample of ``node``'s publishers, and warn naming the topics whose readers had not.

@@ -10,19 +10,25 @@ the same scene."""
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from m2h_ros.core.world.camera import CameraConfig
 from m2h_ros.errors import PipelineError
 
 
+@lru_cache(maxsize=16)
 def _area_weights(n_in: int, n_out: int) -> np.ndarray:
-    """(n_out, n_in) row-stochastic matrix: output pixel i averages the input span [i, i+1) * n_in / n_out."""
+    """(n_out, n_in) row-stochastic matrix: output pixel i averages the input span [i, i+1) * n_in / n_out.
+    Cached: a camera sends every frame at the same size (read-only, shared between calls)."""
     edges = np.arange(n_out + 1) * (n_in / n_out)
     left, right = edges[:-1, None], edges[1:, None]
     pixels = np.arange(n_in)[None, :]
     overlap = np.clip(np.minimum(right, pixels + 1) - np.maximum(left, pixels), 0.0, None)
-    return overlap / overlap.sum(axis=1, keepdims=True)
+    weights = overlap / overlap.sum(axis=1, keepdims=True)
+    weights.flags.writeable = False
+    return weights
 
 
 def _centre_crop(image: np.ndarray, aspect: float) -> np.ndarray:
