@@ -39,6 +39,7 @@ class BaseNode(Node):
         self.command: MotionCommand | None = None  # the one being carried out
         self.pose: Pose2D | None = None
         self.odom_at = -float("inf")  # monotonic time of the last odometry
+        self.held_since: float | None = None  # the command came without fresh odometry: it waits for some
         twist = TwistStamped if self.config.twist_stamped else Twist
         self.pub_cmd_vel = self.create_publisher(twist, topics.CMD_VEL, 10,
                                                  event_callbacks=publisher_events(self.get_logger(), topics.CMD_VEL))
@@ -57,28 +58,45 @@ class BaseNode(Node):
 
     def on_command(self, msg: MotionCommand) -> None:
         now = time.monotonic()
+        superseded = f"superseded by the command for step {msg.step}"
         if self.mover.active:
-            self.finish(self.mover.cancel(f"superseded by the command for step {msg.step}", now))
+            self.finish(self.mover.cancel(superseded, now))
+        elif self.held_since is not None:
+            self.finish(Outcome(ABORTED, superseded, float("nan"), float("nan"), now - self.held_since))
         self.command = msg
-        if now - self.odom_at > self.config.odom_timeout_s:  # none yet, or stale: no move without it
-            self.finish(Outcome(ABORTED, f"no odometry on {topics.ODOM} in the last {self.config.odom_timeout_s:g} s",
-                                float("nan"), float("nan"), 0.0))
+        if now - self.odom_at > self.config.odom_timeout_s:  # none yet, or stale: no move without fresh odometry
+            self.held_since = now
             return
-        outcome = self.mover.start(msg.action, self.pose, now)
+        self.begin(now)
+
+    def begin(self, now: float) -> None:
+        outcome = self.mover.start(self.command.action, self.pose, now)
         if outcome is not None:
             self.finish(outcome)
 
     def on_odom(self, msg: Odometry) -> None:
         x, y, yaw = (float(v) for v in convert.pose_from_odometry(msg))
         self.pose, self.odom_at = Pose2D(x, y, yaw), time.monotonic()
-        if self.mover.active:
+        if self.held_since is not None:
+            self.held_since = None
+            self.begin(self.odom_at)
+        elif self.mover.active:
             (linear, angular), outcome = self.mover.update(self.pose, self.odom_at)
             self.send(linear, angular)
             if outcome is not None:
                 self.finish(outcome)
 
     def tick(self) -> None:
-        outcome = self.mover.tick(time.monotonic(), self.pose)
+        now = time.monotonic()
+        if self.held_since is not None:
+            # Odometry that stopped: odom_timeout_s. None yet (the driver's discovery can lag seconds
+            # behind start-up): as long as a move may take.
+            wait = self.config.odom_timeout_s if self.odom_at > -float("inf") else self.config.move_timeout_s
+            if now - self.held_since > wait:
+                self.finish(Outcome(ABORTED, f"no odometry on {topics.ODOM} within {wait:g} s of the command",
+                                    float("nan"), float("nan"), now - self.held_since))
+            return
+        outcome = self.mover.tick(now, self.pose)
         if outcome is not None:
             self.finish(outcome)
 
@@ -96,15 +114,19 @@ class BaseNode(Node):
     def finish(self, outcome: Outcome) -> None:
         """The command's end: zero velocity, then its MotionResult."""
         self.send(0.0, 0.0)
-        command, self.command = self.command, None
+        command, self.command, self.held_since = self.command, None, None
         result = MotionResult(episode_id=command.episode_id, step=command.step, action=command.action,
                               status=STATUS[outcome.status], reason=outcome.reason,
                               position_error=outcome.position_error, heading_error=outcome.heading_error,
                               duration=outcome.duration)
         result.header.stamp = self.get_clock().now().to_msg()
         self.pub_result.publish(result)
-        log = self.get_logger().info if outcome.status == DONE else self.get_logger().warning
-        log(f"{command.episode_id} step {command.step}: {outcome.status} ({outcome.reason}) in {outcome.duration:.2f} s")
+        line = f"{command.episode_id} step {command.step}: {outcome.status} ({outcome.reason}) in {outcome.duration:.2f} s"
+        # Two call sites: rclpy refuses one logging call that changes its severity between calls.
+        if outcome.status == DONE:
+            self.get_logger().info(line)
+        else:
+            self.get_logger().warning(line)
 
     def destroy_node(self) -> None:
         self.send(0.0, 0.0)  # run_node keeps the context alive until here (publish_on_shutdown)

@@ -136,3 +136,22 @@ def test_shutdown_mid_move_sends_zero_velocity_on_plain_twist(graph, processes):
     assert code == 0 and "Traceback" not in err, err
     driver.wait_for(lambda: driver.twists[-1] == (0.0, 0.0), 5, "zero velocity after SIGINT")
     assert not math.isnan(driver.twists[-1][0])
+
+
+def test_a_command_before_any_odometry_waits_for_it(processes):
+    """The base driver's odometry can reach base_node seconds after its first command (discovery at
+    start-up): the command waits for it and is carried out."""
+    node = processes.start(node_args("base_node"))
+    driver = Driver()
+    try:
+        driver.wait_for(lambda: driver.pub.get_subscription_count() > 0, 60, "base_node")
+        time.sleep(0.5)
+        driver.pub.publish(MotionCommand(episode_id="robot", step=0, action=LEFT, controller="test"))
+        time.sleep(2.0)  # longer than odom_timeout_s: no odometry yet, and no result either
+        assert driver.results == []
+        processes.start([sys.executable, KINEMATIC_BASE])
+        driver.wait_for(lambda: driver.results, 60, "result for step 0")
+        assert driver.results[0].status == MotionResult.DONE, driver.results[0].reason
+    finally:
+        driver.close()
+        processes.interrupt(node)
