@@ -13,12 +13,14 @@ Builds the data the episodes need first (sound library, episode file; RIR banks 
 built by the simulator on first use), starts every node with its params file from params/ (plus the
 overrides), waits for the simulator to finish its episodes, then stops the other nodes in order
 (SIGINT, wait, SIGKILL if one hangs) and prints the scores table and where the bag, the tables and the
-plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/.
+plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/. Should this script
+itself be killed (SIGKILL, an out-of-memory kill), every node gets SIGTERM and stops: none outlives it.
 """
 
 from __future__ import annotations
 
 import argparse
+import ctypes
 import dataclasses
 import os
 import random
@@ -43,6 +45,7 @@ STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "base_node"
               "audio_common_adapter", "recorder_node", "live_view_node")
 LIVE_VIEW_PORT = 8765  # Foxglove's default
 STOP_TIMEOUT_S = 20.0
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -164,6 +167,21 @@ def stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
+def stop_with(parent: int):
+    """What each node's process runs before its exec: SIGTERM to it when run_pipeline dies, however it
+    dies. The nodes run in sessions of their own (so a Ctrl-C reaches them in stop order, not all at
+    once), so nothing else would stop them when this script is killed outright."""
+
+    prctl = ctypes.CDLL(None).prctl  # looked up here: the child of a fork should only call it
+
+    def set_parent_death_signal() -> None:
+        prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != parent:  # died before the line above took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return set_parent_death_signal
+
+
 def last_error(log: Path) -> str:
     lines = [line for line in log.read_text(errors="replace").splitlines() if "FATAL" in line or "ERROR" in line
              or "Error" in line]
@@ -216,7 +234,8 @@ def main(argv=None) -> int:
             for topic, to in ROBOT_REMAPS.get(node, ()) if args.robot else ():
                 command += ["-r", f"{topic}:={to}"]
             procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,
-                                           env=env, start_new_session=True, cwd=ROOT)
+                                           env=env, start_new_session=True, cwd=ROOT,
+                                           preexec_fn=stop_with(os.getpid()))
         while procs[finisher].poll() is None:
             early = [n for n, p in procs.items() if n != finisher and p.poll() is not None]
             if early:  # the run cannot go on: stop now rather than wait out the sim's step timeout

@@ -1,6 +1,7 @@
-"""Shared fixtures. Graph tests get an isolated ROS_DOMAIN_ID and localhost-only discovery, and every
-process they start is stopped (SIGINT, then SIGKILL) when the test ends."""
+"""Shared fixtures. Each test gets a ROS_DOMAIN_ID of its own and localhost-only discovery, and every
+process a graph test starts is stopped (SIGINT, then SIGKILL) when the test ends."""
 
+import faulthandler
 import os
 import random
 import signal
@@ -18,14 +19,43 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))  # for the shared helpers module
 
 
+# Fast DDS's ports of a domain above 100 reach into Linux's ephemeral port range.
+DOMAINS = 100
+_tests_started = 0
+_terminal_stderr = 2  # the terminal's stderr, duplicated before any test's output capture replaces fd 2
+
+
 def pytest_configure(config):
-    # One domain per test run, so parallel runs on one machine never hear each other.
-    os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid() ^ time.time_ns()).randint(1, 100)))
+    global _terminal_stderr
+    _terminal_stderr = os.dup(2)
+    # The first test's domain: a run's own start point, so parallel runs on one machine seldom meet.
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid() ^ time.time_ns()).randint(1, DOMAINS)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     # A suite started in the background of a non-interactive shell inherits SIGINT ignored, and so would
     # every process it starts (an ignored signal stays ignored across exec): the tests stop them with it.
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@pytest.fixture(autouse=True)
+def ros_domain(monkeypatch):
+    """Each test on the next domain: a node of an earlier test still shutting down, or a shared-memory
+    port that a killed process left behind, cannot reach into the next test."""
+    global _tests_started
+    first = int(os.environ["ROS_DOMAIN_ID"])
+    monkeypatch.setenv("ROS_DOMAIN_ID", str((first - 1 + _tests_started) % DOMAINS + 1))
+    _tests_started += 1
+    yield
+
+
+@pytest.fixture(autouse=True)
+def no_endless_hang(request):
+    """pytest-timeout's signal cannot break a wait inside native code (a DDS call of a test's own rclpy
+    node): two minutes past its limit the suite ends with every thread's traceback instead of hanging."""
+    faulthandler.dump_traceback_later(float(request.config.getini("timeout")) + 120, exit=True,
+                                      file=_terminal_stderr)
+    yield
+    faulthandler.cancel_dump_traceback_later()
 
 
 class Processes:
