@@ -18,7 +18,7 @@ from m2h_ros.errors import LiveViewError
 from m2h_ros.io.derived import TF_STATIC, Derived
 from m2h_ros.io.msg_defs import ensure_known, typestore
 from m2h_ros.node_configs import LiveViewConfig
-from m2h_ros.ros.introspection import adapted_qos, offered_topics
+from m2h_ros.ros.introspection import adapted_qos, definition_mismatch, offered_topics
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import EPISODE_HISTORY, subscription_events
 from m2h_ros.ros.spin import run_node
@@ -62,6 +62,10 @@ class LiveViewNode(Node):
     def channel(self, topic: str, type_name: str) -> Channel:
         store = typestore()
         ensure_known(store, type_name)  # a robot driver's own type: from its installed package
+        mismatch = definition_mismatch(self, topic, type_name, store.hash_rihs01(type_name),
+                                       used="served to Foxglove", reader="Foxglove")
+        if mismatch:
+            self.get_logger().warning(mismatch)
         definition = store.generate_msgdef(type_name, ros_version=2)[0]
         return Channel(topic, message_encoding="cdr", context=self.sink_context,
                        schema=Schema(name=type_name, encoding="ros2msg", data=definition.encode()))

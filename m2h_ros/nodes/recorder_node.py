@@ -12,7 +12,7 @@ from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
 from m2h_ros.io.derived import Derived, offered_qos as derived_qos
 from m2h_ros.node_configs import RecorderConfig
-from m2h_ros.ros.introspection import adapted_qos, offered_qos, offered_topics
+from m2h_ros.ros.introspection import adapted_qos, definition_mismatch, offered_qos, offered_topics
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import subscription_events
 from m2h_ros.ros.spin import run_node
@@ -55,7 +55,10 @@ class RecorderNode(Node):
                 self.get_logger().warning(f"not recording {topic}: {problem}")
                 self.recorded[topic] = ""
                 continue
-            self.check_definition(topic, offer.type_name)
+            mismatch = definition_mismatch(self, topic, offer.type_name, self.writer.type_hash(topic),
+                                           used="recorded in the bag", reader="a reader of the bag")
+            if mismatch:
+                self.get_logger().warning(mismatch)
             self.recorded[topic] = offer.type_name
             self.counts[topic] = 0
             self.create_subscription(
@@ -63,18 +66,6 @@ class RecorderNode(Node):
                 adapted_qos(self, topic), raw=True,
                 event_callbacks=subscription_events(self.get_logger(), topic))
             self.get_logger().info(f"recording {topic} [{offer.type_name}]")
-
-    def check_definition(self, topic: str, type_name: str) -> None:
-        """Warn when the definition the bag holds for ``topic`` (an installed package's, for a type this
-        project does not define) is not the one its publishers were built with: the bytes are recorded
-        all the same, but a reader would decode them with the wrong fields."""
-        offered = {str(info.topic_type_hash) for info in self.get_publishers_info_by_topic(topic)}
-        recorded = self.writer.type_hash(topic)
-        if offered and recorded not in offered:
-            self.get_logger().warning(f"{topic}: the definition of {type_name} recorded in the bag hashes to "
-                                      f"{recorded}, its publishers' to {', '.join(sorted(offered))}: "
-                                      "a reader of the bag will misread it (an installed package differs from "
-                                      "the publisher's)")
 
     def write(self, topic: str, data: bytes) -> None:
         now = self.get_clock().now().nanoseconds

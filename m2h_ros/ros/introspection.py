@@ -48,6 +48,19 @@ def offered_topics(node: Node, *, known: Container[str], wanted: Collection[str]
             yield OfferedTopic(topic, types[0], problem=f"type {types[0]} is not importable")
 
 
+def definition_mismatch(node: Node, topic: str, type_name: str, definition_hash: str, *, used: str,
+                        reader: str) -> str:
+    """A warning when the definition ``used`` for ``topic`` (an installed package's, for a type this project
+    does not define) hashes otherwise than its publishers' (RIHS01): the bytes pass all the same, but
+    ``reader`` would decode them with the wrong fields. Empty when they agree or no publisher says."""
+    offered = {str(info.topic_type_hash) for info in node.get_publishers_info_by_topic(topic)}
+    if not offered or definition_hash in offered:
+        return ""
+    return (f"{topic}: the definition of {type_name} {used} hashes to {definition_hash}, its publishers' to "
+            f"{', '.join(sorted(offered))}: {reader} will misread it (an installed package differs from the "
+            "publisher's)")
+
+
 def optional_message_class(type_name: str) -> type | None:
     """The class where its package is installed, else None (the PyPI wheels lack tf2_msgs and
     foxglove_msgs; a ROS 2 install may have them)."""

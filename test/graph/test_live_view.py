@@ -19,6 +19,8 @@ import pytest
 import websockets
 from mcap_ros2._dynamic import generate_dynamic
 from pipeline_helpers import ROOT, ROS2RUN, node_env, tiny_sets
+from test_executables import wait_for_line
+from test_recorder import stale_audio_info_env
 from rosbags.rosbag2 import Reader
 
 from m2h_ros.io.msg_defs import typestore
@@ -187,3 +189,20 @@ def test_a_taken_port_stops_the_node_naming_it(processes):
         _, err = proc.communicate(timeout=60.0)
     assert proc.returncode == 2, err
     assert f"LiveViewError: cannot serve on 127.0.0.1:{port}" in err and "Address already in use" in err
+
+
+def test_a_definition_that_differs_from_the_publishers_is_named(processes, tmp_path):
+    """As the recorder: a stale installed AudioInfo.msg is served with a warning naming both hashes."""
+    view = processes.start([ROS2RUN, "m2h_ros", "live_view_node", "--ros-args", "-p", f"port:={free_port()}",
+                            "-p", "discovery_period_s:=0.2"], env=stale_audio_info_env(tmp_path))
+    wait_for_line(view, "serving the graph")
+    driver = processes.start([sys.executable, str(ROOT / "test" / "graph" / "audio_capture_stand_in.py")])
+    log = ""
+    for line in ("serving /audio/audio_info", "serving /audio/audio_stamped"):  # in either order
+        if line not in log:
+            log += "".join(wait_for_line(view, line))
+    assert processes.interrupt(view)[0] == 0
+    processes.interrupt(driver)
+    assert "/audio/audio_info: the definition of audio_common_msgs/msg/AudioInfo served to Foxglove" in log, log
+    assert "Foxglove will misread it" in log
+    assert "/audio/audio_stamped: the definition" not in log

@@ -132,17 +132,22 @@ def test_recorder_lists_the_offered_qos(processes, tmp_path):
     assert (offered["reliability"], offered["durability"]) == ("reliable", "transient_local")
 
 
+def stale_audio_info_env(tmp_path) -> dict[str, str]:
+    """The environment with a stale audio_common_msgs AudioInfo.msg (two fields of the released five)
+    first on AMENT_PREFIX_PATH."""
+    stale = tmp_path / "stale" / "share" / "audio_common_msgs" / "msg"
+    stale.mkdir(parents=True)
+    (stale / "AudioInfo.msg").write_text("uint8 channels\nuint32 sample_rate\n")
+    return {**os.environ, "AMENT_PREFIX_PATH": f"{tmp_path / 'stale'}:{os.environ['AMENT_PREFIX_PATH']}"}
+
+
 def test_a_definition_that_differs_from_the_publishers_is_named(processes, tmp_path):
     """A driver's type is recorded with its installed package's definition; where that is not the one the
     publisher was built with (here a stale AudioInfo.msg first on AMENT_PREFIX_PATH), the recorder warns,
     naming both hashes, and still records; the matching types pass without a word."""
-    stale = tmp_path / "stale" / "share" / "audio_common_msgs" / "msg"
-    stale.mkdir(parents=True)
-    (stale / "AudioInfo.msg").write_text("uint8 channels\nuint32 sample_rate\n")
-    env = {**os.environ, "AMENT_PREFIX_PATH": f"{tmp_path / 'stale'}:{os.environ['AMENT_PREFIX_PATH']}"}
     bag = tmp_path / "bag"
     recorder = processes.start([ROS2RUN, "m2h_ros", "recorder_node", "--ros-args", "-p", f"output:={bag}",
-                                "-p", "discovery_period_s:=0.2"], env=env)
+                                "-p", "discovery_period_s:=0.2"], env=stale_audio_info_env(tmp_path))
     wait_for_line(recorder, "recording to")
     driver = processes.start([sys.executable, str(Path(__file__).with_name("audio_capture_stand_in.py"))])
     log = ""
