@@ -18,18 +18,19 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))  # for the shared helpers module
 
+from ros_domains import DOMAINS, domain_in_use  # noqa: E402  (found through the path above)
 
-# Fast DDS's ports of a domain above 100 reach into Linux's ephemeral port range.
-DOMAINS = 100
-_tests_started = 0
+
+_next_domain = 0  # set by pytest_configure
 _terminal_stderr = 2  # the terminal's stderr, duplicated before any test's output capture replaces fd 2
 
 
 def pytest_configure(config):
-    global _terminal_stderr
+    global _terminal_stderr, _next_domain
     _terminal_stderr = os.dup(2)
-    # The first test's domain: a run's own start point, so parallel runs on one machine seldom meet.
+    # The run's own domain (module fixtures' runs) and where the first test looks for a free one.
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid() ^ time.time_ns()).randint(1, DOMAINS)))
+    _next_domain = int(os.environ["ROS_DOMAIN_ID"])
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     # A suite started in the background of a non-interactive shell inherits SIGINT ignored, and so would
     # every process it starts (an ignored signal stays ignored across exec): the tests stop them with it.
@@ -39,12 +40,14 @@ def pytest_configure(config):
 
 @pytest.fixture(autouse=True)
 def ros_domain(monkeypatch):
-    """Each test on the next domain: a node of an earlier test still shutting down, or a shared-memory
-    port that a killed process left behind, cannot reach into the next test."""
-    global _tests_started
-    first = int(os.environ["ROS_DOMAIN_ID"])
-    monkeypatch.setenv("ROS_DOMAIN_ID", str((first - 1 + _tests_started) % DOMAINS + 1))
-    _tests_started += 1
+    """Each test on a domain of its own, the next that no participant on this machine holds: nodes of an
+    earlier test still shutting down, or of another test run, cannot reach into it."""
+    global _next_domain
+    for _ in range(DOMAINS):
+        domain, _next_domain = _next_domain, _next_domain % DOMAINS + 1
+        if not domain_in_use(domain):
+            break
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     yield
 
 
