@@ -42,14 +42,18 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
 
     ``publish_on_shutdown``: Ctrl-C and SIGTERM leave the context alive until the node is destroyed, so
     its destroy_node() can still publish (a base's last zero velocity). rclpy's own handlers shut the
-    context down at the signal; Python's raise KeyboardInterrupt in the spin instead (the node needs a
-    timer, so that the executor's wait returns to Python)."""
+    context down at the signal; without them only Python's raise KeyboardInterrupt in the spin (the node
+    needs a timer, so that the executor's wait returns to Python)."""
     keep_freed_blocks()  # each step's messages are above glibc's initial mmap threshold
     node = None
     code = 0
     try:
+        # SIGTERM raises KeyboardInterrupt, as SIGINT does. rclpy's own SIGTERM handling wakes the executor
+        # before it shuts the context down: an executor that woke in between found the context alive and
+        # waited again, with nothing left to wake it (an idle node hung in 1 of 10 SIGTERMs). rclpy's
+        # handler chains to this one, and its wake-up lets Python run it.
+        signal.signal(signal.SIGTERM, _interrupt)
         if publish_on_shutdown:
-            signal.signal(signal.SIGTERM, _interrupt)
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         else:
             rclpy.init(args=args)  # inside the try: a Ctrl-C here is a clean exit too

@@ -378,8 +378,11 @@ def test_run_pipeline_stopped_or_killed_leaves_no_node_running(signum, small_lib
             assert run.returncode == 130, out
             assert not marked_nodes()
         deadline = time.monotonic() + 30
-        while marked_nodes():
-            assert time.monotonic() < deadline, f"nodes still running 30 s after run_pipeline's {signum.name}"
+        while left := marked_nodes():
+            if time.monotonic() > deadline:
+                names = [Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[1].decode() for pid in left]
+                logs = {log.name: log.read_text()[-1500:] for log in (tmp_path / "logs").iterdir()}
+                pytest.fail(f"still running 30 s after run_pipeline's {signum.name}: {names}; logs {logs}")
             time.sleep(0.2)
     finally:
         if run.poll() is None:
