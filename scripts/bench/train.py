@@ -7,7 +7,7 @@ of an update's wall time spent in the simulator, the separator (f^B, f^M, f^R in
 
 Each repeat is a fresh trainer (16 slots x 20 steps per update, camera on, the shipped compact
 separator, the full sound library) on near-target (far-target for navigation kinds) test episodes,
-whose RIR banks must be built (they are what the lead builds for evaluation). RIR banks and camera
+whose RIR banks must be built (the same banks evaluation builds). RIR banks and camera
 views are loaded before timing and the first update is a warm-up; the figure is the median over the
 remaining updates, with the process's CPU time per env step (all threads: what the steps cost
 whatever the load), and the share of separated observations whose f^B / f^M outputs the rollout
