@@ -74,16 +74,17 @@ class Processes:
         return proc
 
     @staticmethod
-    def interrupt(proc: subprocess.Popen, *, timeout: float = 15.0) -> tuple[int, str, str]:
-        """SIGINT, wait; returns (returncode, stdout, stderr). Kills the group if it hangs."""
+    def interrupt(proc: subprocess.Popen, *, timeout: float = 15.0,
+                  signum: signal.Signals = signal.SIGINT) -> tuple[int, str, str]:
+        """SIGINT (or ``signum``), wait; returns (returncode, stdout, stderr). Kills the group if it hangs."""
         if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(signum)
         try:
             out, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             out, err = proc.communicate()
-            pytest.fail(f"{proc.args} did not exit within {timeout} s of SIGINT:\n{err}")
+            pytest.fail(f"{proc.args} did not exit within {timeout} s of {signum.name}:\n{err}")
         return proc.returncode, out, err
 
     def cleanup(self) -> None:

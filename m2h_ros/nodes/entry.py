@@ -1,8 +1,8 @@
 """The console scripts of the nodes (``ros2 run m2h_ros <node>``).
 
-Each imports its node module only when called, so a Ctrl-C while the node is still importing
-(seconds: torch is among its modules) ends it as quietly as one a moment later does: exit code 0, no
-traceback. The installed scripts import these entry points directly (setup.py), so the only moment
+Each imports its node module only when called, so a Ctrl-C or SIGTERM while the node is still
+importing (seconds: torch is among its modules) ends it as quietly as one a moment later does: exit
+code 0, no traceback. The installed scripts import these entry points directly (setup.py), so the only moment
 left in which a Ctrl-C prints a traceback is Python's own start-up before the script runs (its site
 packages' .pth files: some 10 to 20 ms). Once the node has exited (run_node: its bag closed, its
 tables written) the process ends at once: Python's own finalisation after an rclpy shutdown could hang
@@ -18,10 +18,15 @@ NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "rec
          "capture_node", "base_node", "episode_driver", "audio_common_adapter")
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run(node: str) -> None:
     # Started in the background of a non-interactive shell, a process inherits SIGINT ignored; a node must
     # still stop on it (Ctrl-C, ros2 launch's shutdown), as rclpy's own handler would make it.
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)  # as Ctrl-C, from here on (m2h_ros.ros.spin says why)
     try:
         module = importlib.import_module(f"m2h_ros.nodes.{node}")
     except KeyboardInterrupt:

@@ -77,7 +77,8 @@ def test_node_starts_and_exits_on_sigint(node, processes, tmp_path, request):
         assert f"[recorder_node]: closed {tmp_path / 'bag'}" in err, err
 
 
-def test_ctrl_c_while_a_node_is_still_importing_is_clean(processes):
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
+def test_a_stop_while_a_node_is_still_importing_is_clean(signum, processes):
     exe = str(Path(get_package_prefix("m2h_ros")) / "lib" / "m2h_ros" / "separator_node")
     for _ in range(3):
         proc = processes.start([exe])
@@ -86,7 +87,7 @@ def test_ctrl_c_while_a_node_is_still_importing_is_clean(processes):
         while "libtorch" not in maps.read_text():  # torch is being imported: seconds before "ready"
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.01)
-        code, _, err = processes.interrupt(proc)
+        code, _, err = processes.interrupt(proc, signum=signum)
         assert code == 0, err
         assert "Traceback" not in err and "ready:" not in err, err
 
