@@ -18,15 +18,11 @@ NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "rec
          "capture_node", "base_node", "episode_driver", "audio_common_adapter")
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def run(node: str) -> None:
     # Started in the background of a non-interactive shell, a process inherits SIGINT ignored; a node must
     # still stop on it (Ctrl-C, ros2 launch's shutdown), as rclpy's own handler would make it.
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, _interrupt)  # as Ctrl-C, from here on (m2h_ros.ros.spin says why)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # as Ctrl-C (m2h_ros.ros.spin says why)
     try:
         module = importlib.import_module(f"m2h_ros.nodes.{node}")
     except KeyboardInterrupt:

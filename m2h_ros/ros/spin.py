@@ -33,10 +33,6 @@ def default_name(node_type: type[Node]) -> str:
     return module.rpartition(".")[2]
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on_shutdown: bool = False) -> None:
     """Build and spin ``node_type`` until shutdown; exit code 2 on a configuration/data/pipeline error.
 
@@ -52,7 +48,7 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
         # before it shuts the context down: an executor that woke in between found the context alive and
         # waited again, with nothing left to wake it (an idle node hung in 1 of 10 SIGTERMs). rclpy's
         # handler chains to this one, and its wake-up lets Python run it.
-        signal.signal(signal.SIGTERM, _interrupt)
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
         if publish_on_shutdown:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         else:
