@@ -23,8 +23,15 @@ def run(node: str) -> None:
     # still stop on it (Ctrl-C, ros2 launch's shutdown), as rclpy's own handler would make it.
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # as Ctrl-C (m2h_ros.ros.spin says why)
+    stops = {signal.SIGINT, signal.SIGTERM}
     try:
-        module = importlib.import_module(f"m2h_ros.nodes.{node}")
+        # Held while importing: one that lands inside an extension module's initialisation (torch's) came
+        # out as ImportError or was lost, and the node started anyway. Released here, it stops the node.
+        signal.pthread_sigmask(signal.SIG_BLOCK, stops)
+        try:
+            module = importlib.import_module(f"m2h_ros.nodes.{node}")
+        finally:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, stops)
     except KeyboardInterrupt:
         sys.exit(0)
     try:
