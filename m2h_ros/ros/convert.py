@@ -217,7 +217,8 @@ def occupancy_grid_msg(grid: Grid, *, stamp_ns: int) -> OccupancyGrid:
     msg.info.map_load_time = msg.header.stamp
     msg.info.resolution, msg.info.width, msg.info.height = float(grid.resolution), cols, rows
     msg.info.origin.position.x, msg.info.origin.position.y = (float(v) for v in grid.origin)
-    msg.info.origin.orientation.w = 1.0
+    msg.info.origin.orientation.z = math.sin(float(grid.yaw) / 2)
+    msg.info.origin.orientation.w = math.cos(float(grid.yaw) / 2)
     msg.data = array.array("b", np.ascontiguousarray(grid.cells, np.int8).tobytes())
     return msg
 

@@ -68,9 +68,29 @@ def twist(previous, pose, seconds: float) -> tuple[float, float, float]:
 
 @dataclass(frozen=True)
 class OccupancyGrid:
+    """A floor plan raster as nav_msgs/OccupancyGrid and nav2's map_server hold one: row 0 is the
+    bottom row (smallest y of the grid's own frame), cell (ix, iy) is ``cells[iy, ix]``, and the grid
+    frame is the map frame turned by ``yaw`` about ``origin``."""
     cells: np.ndarray  # (rows along y, columns along x) int8: FREE, OCCUPIED or UNKNOWN
     resolution: float  # metres per cell
     origin: tuple[float, float]  # map coordinates of cell (0, 0)'s outer corner
+    yaw: float = 0.0  # radians, the grid's rotation in the map frame (map.yaml's third origin value)
+
+    def cell_centres(self, ix, iy) -> np.ndarray:
+        """(..., 2) map coordinates of the centres of cells (ix, iy) (arrays broadcast)."""
+        u = (np.asarray(ix, np.float64) + 0.5) * self.resolution
+        v = (np.asarray(iy, np.float64) + 0.5) * self.resolution
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return np.stack([self.origin[0] + c * u - s * v, self.origin[1] + s * u + c * v], axis=-1)
+
+    def cell_of(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        """Integer cell indices (ix, iy) holding map points ``xy`` (..., 2); may lie outside the grid."""
+        points = np.asarray(xy, np.float64)
+        dx, dy = points[..., 0] - self.origin[0], points[..., 1] - self.origin[1]
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        u, v = c * dx + s * dy, -s * dx + c * dy
+        return (np.floor(u / self.resolution).astype(np.int64),
+                np.floor(v / self.resolution).astype(np.int64))
 
 
 def occupancy_grid(scene: Scene, *, resolution: float = 0.1) -> OccupancyGrid:
