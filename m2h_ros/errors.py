@@ -18,6 +18,10 @@ class ConfigError(M2HError, ValueError):
     """A configuration value (dataclass field, params YAML, CLI option) is invalid."""
 
 
+class MapError(ConfigError):
+    """A robot map (nav2 map.yaml and its image) is unusable: missing, malformed, or not what map_server reads."""
+
+
 class AudioError(M2HError, ValueError):
     """Audio input is unusable: wrong shape, non-finite samples, silence, bad sample rate."""
 
