@@ -12,12 +12,16 @@ so the rows below see through to the next room) and box tops seen from above.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from m2h_ros.core.world.navgrid import heading_angle
 from m2h_ros.core.world.scene import OBSTACLE_COLOR, Scene
 from m2h_ros.errors import ConfigError
+
+if TYPE_CHECKING:
+    from m2h_ros.core.world.mesh_camera import MeshRenderer
 
 _EPS = 1e-9
 
@@ -56,6 +60,16 @@ def pixel_slopes(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
             (config.height / 2 - (np.arange(config.height) + 0.5)) / f)
 
 
+def scene_palette(scene: Scene) -> np.ndarray:
+    """Colours (5 (R + 1) + 2, 3) float32 of what the camera shows of a scene with R rooms, in blocks of
+    R + 1 rows (row r for room r, the last row for "outside"): walls seen on y = const lines, walls on
+    x = const (darker, so corners read), floor, floor checker cells, ceiling; then obstacle sides and tops."""
+    colors = np.vstack([np.array([r.color for r in scene.rooms]), [0.35, 0.35, 0.35]])
+    floor = 0.55 * colors + 0.45 * 0.35
+    return np.vstack([colors, 0.82 * colors, floor, 0.9 * floor, 0.25 * colors + 0.69,
+                      OBSTACLE_COLOR, np.multiply(OBSTACLE_COLOR, 1.4)]).astype(np.float32)
+
+
 class SceneRenderer:
     """Renders views of one scene at arbitrary poses; geometry arrays are built once."""
 
@@ -80,14 +94,8 @@ class SceneRenderer:
         self._z1 = np.concatenate([[w.z1 for w in walls], [o.height for o in boxes]])
         self._full_height = np.concatenate([(self._z0[:len(walls)] <= 0) & (self._z1[:len(walls)] >= scene.height),
                                             np.zeros(len(boxes), dtype=bool)])
-        # Palette rows, in blocks of (rooms + 1) with the last row of a block for "outside":
-        # walls seen on y = const lines, walls on x = const (darker, so corners read), floor,
-        # floor checker cells, ceiling; then obstacle sides and obstacle tops.
-        colors = np.vstack([np.array([r.color for r in scene.rooms]), [0.35, 0.35, 0.35]])
-        floor = 0.55 * colors + 0.45 * 0.35
-        self._n_block = len(colors)
-        self._palette = np.vstack([colors, 0.82 * colors, floor, 0.9 * floor, 0.25 * colors + 0.69,
-                                   OBSTACLE_COLOR, np.multiply(OBSTACLE_COLOR, 1.4)]).astype(np.float32)
+        self._palette = scene_palette(scene)
+        self._n_block = len(scene.rooms) + 1
         # Pixel geometry: column offsets (right of the axis) and row slopes (up), in units of focal.
         self._col_offset, self._row_slope = pixel_slopes(config)
 
@@ -176,10 +184,18 @@ class SceneRenderer:
 
 
 class CameraViews:
-    """Per-scene cache of the views at the discrete poses (node, heading), rendered lazily."""
+    """Per-scene cache of the views at the discrete poses (node, heading), rendered lazily. A world with a
+    triangle mesh (``scene.mesh``, e.g. loaded from a robot's map or a scan) is seen through the mesh
+    camera; a generated scene through the exact renderer."""
 
     def __init__(self, scene: Scene, config: CameraConfig = CameraConfig()) -> None:
-        self.renderer = SceneRenderer(scene, config)
+        mesh = getattr(scene, "mesh", None)
+        if mesh is None:
+            self.renderer: SceneRenderer | MeshRenderer = SceneRenderer(scene, config)
+        else:
+            from m2h_ros.core.world.mesh_camera import MeshRenderer   # it imports this module
+
+            self.renderer = MeshRenderer(mesh, config, floor_z=getattr(scene, "floor_z", 0.0))
         self.scene, self.config = scene, config
         n = scene.grid.n_nodes
         self._rendered = np.zeros((n, 4), dtype=bool)
@@ -226,5 +242,6 @@ class CameraViews:
             self._depth = np.zeros((n, 4, cfg.height, cfg.width), dtype=np.float32)
         missing = ~self._rendered[nodes, headings]
         for node, heading in set(zip(nodes[missing].tolist(), headings[missing].tolist())):
-            self._rgb[node, heading], self._depth[node, heading] = self.renderer.render_node(node, heading)
+            self._rgb[node, heading], self._depth[node, heading] = self.renderer.render(
+                self.scene.grid.positions[node], float(heading_angle(heading)))
             self._rendered[node, heading] = True

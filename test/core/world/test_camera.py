@@ -126,7 +126,7 @@ def test_view_cache_matches_renderer_and_renders_each_pose_once(monkeypatch):
     np.testing.assert_array_equal(depth[5], ref_depth)
     assert np.isfinite(depth).all() and (depth > 0).all()
     # Warm, a batch is gathered from the cache, never rendered again (its speed: scripts/bench/camera.py).
-    monkeypatch.setattr(views.renderer, "render_node", None)
+    monkeypatch.setattr(views.renderer, "render", None)
     warm_rgb, warm_depth = views.views(nodes[::-1], headings[::-1])
     np.testing.assert_array_equal(warm_rgb, rgb[::-1])
     np.testing.assert_array_equal(warm_depth, depth[::-1])
