@@ -58,7 +58,7 @@ QUANTUM = 65535  # GraphicsMagick's 16-bit quantum range: map_server's and map_s
 class RosMap:
     """A map file as map_server loads it, plus map_server's trinary reading of the same pixels."""
     grid: OccupancyGrid  # what map_server publishes on /map
-    trinary: np.ndarray  # (rows, cols) int8 FREE/OCCUPIED/UNKNOWN, same row order as grid.cells
+    trinary: np.ndarray  # (rows, cols) int8 FREE/OCCUPIED/UNKNOWN like grid.cells (the same array if trinary)
     yaml_path: Path
     image_path: Path
     sha256: str  # of the YAML's and the image's bytes: a cache key for what is built from the map
@@ -89,7 +89,7 @@ def read_ros_map(yaml_path: str | Path) -> RosMap:
     path = Path(yaml_path).expanduser()
     text = _read_bytes(path, what="map file", fix="pass the map.yaml that map_saver_cli wrote")
     try:
-        document = yaml.safe_load(text)
+        document = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml when there
     except yaml.YAMLError as exc:
         raise MapError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from exc
     settings = _settings(document, path)
@@ -99,14 +99,15 @@ def read_ros_map(yaml_path: str | Path) -> RosMap:
     image_bytes = _read_bytes(image_path, what=f"map image (named by {path})",
                               fix=f"the 'image' key is relative to {path.parent}")
     grey, alpha = _decode(image_bytes, image_path)
-    cells, trinary = _occupancy(grey, alpha, settings)
+    # Image row 0 is the top; OccupancyGrid row 0 is the bottom.
+    cells, trinary = _occupancy(grey[::-1], None if alpha is None else alpha[::-1], settings)
     x, y, yaw = settings["origin"]
     digest = hashlib.sha256()
     for part in (text, image_bytes):
         digest.update(len(part).to_bytes(8, "little"))
         digest.update(part)
-    return RosMap(grid=OccupancyGrid(np.ascontiguousarray(cells[::-1]), settings["resolution"], (x, y), yaw),
-                  trinary=np.ascontiguousarray(trinary[::-1]), yaml_path=path, image_path=image_path,
+    return RosMap(grid=OccupancyGrid(cells, settings["resolution"], (x, y), yaw),
+                  trinary=trinary, yaml_path=path, image_path=image_path,
                   sha256=digest.hexdigest(), mode=settings["mode"], negate=settings["negate"],
                   occupied_thresh=settings["occupied_thresh"], free_thresh=settings["free_thresh"])
 
@@ -268,6 +269,8 @@ def _decode(data: bytes, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         raise MapError(f"{path}: the map image has no pixels ({pixels.shape[1]} x {pixels.shape[0]})")
     if mode in ("L", "LA"):
         grey = pixels if mode == "L" else pixels[..., 0]
+    elif np.array_equal(pixels[..., 0], pixels[..., 1]) and np.array_equal(pixels[..., 1], pixels[..., 2]):
+        grey = pixels[..., 0]  # a grey pixel's luma is its value (map_saver's scale images are grey RGBA)
     else:
         # GraphicsMagick's GrayscaleType: float32 Rec. 601 luma of 16-bit quanta, rounded; then truncated
         # to 8 bits. This matches `gm convert -type Grayscale` for all 2^24 colours.
@@ -275,7 +278,7 @@ def _decode(data: bytes, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         luma = (np.float32(0.299) * quanta[..., 0] + np.float32(0.587) * quanta[..., 1]
                 + np.float32(0.114) * quanta[..., 2] + np.float32(0.5))
         grey = (np.floor(luma).astype(np.int32) // 257).astype(np.uint8)
-    return grey, (pixels[..., -1] if mode in ("LA", "RGBA") else None)
+    return np.ascontiguousarray(grey), (np.ascontiguousarray(pixels[..., -1]) if mode in ("LA", "RGBA") else None)
 
 
 def _channels(image: Image.Image) -> tuple[np.ndarray, str]:
@@ -293,8 +296,22 @@ def _channels(image: Image.Image) -> tuple[np.ndarray, str]:
 
 
 def _occupancy(grey: np.ndarray, alpha: np.ndarray | None, settings: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(cells as map_server fills them, the trinary reading), both top row first."""
+    """(cells as map_server fills them, the trinary reading; one array for a trinary map), in the rows'
+    order of ``grey``: each of the 256 grey levels is worked out once, then looked up."""
+    cells_of, trinary_of = _levels(settings)
+    cells = np.take(cells_of, grey)
+    trinary = cells if settings["mode"] == "trinary" else np.take(trinary_of, grey)
+    if alpha is not None and settings["mode"] != "raw":
+        translucent = alpha < 255
+        cells = np.where(translucent, np.int8(UNKNOWN), cells)
+        trinary = cells if settings["mode"] == "trinary" else np.where(translucent, np.int8(UNKNOWN), trinary)
+    return cells, trinary
+
+
+def _levels(settings: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(256,) int8 cell value and trinary reading of each grey level."""
     occupied_thresh, free_thresh = settings["occupied_thresh"], settings["free_thresh"]
+    grey = np.arange(256)
     if settings["mode"] == "raw":
         cells = np.where(grey <= OCCUPIED, grey, UNKNOWN).astype(np.int8)
         trinary = np.full(grey.shape, UNKNOWN, np.int8)
@@ -308,14 +325,10 @@ def _occupancy(grey: np.ndarray, alpha: np.ndarray | None, settings: dict) -> tu
     trinary = np.full(grey.shape, UNKNOWN, np.int8)
     trinary[occ >= occ_f] = OCCUPIED
     trinary[occ <= free_f] = FREE
-    if alpha is not None:
-        trinary[alpha < 255] = UNKNOWN
     if settings["mode"] == "trinary":
         return trinary, trinary
     cells = trinary.copy()
     between = (occ > free_f) & (occ < occ_f)
-    if alpha is not None:
-        between &= alpha == 255
     scaled = (occ[between] - free_f) / np.float32(occupied_thresh - free_thresh) * np.float32(100)
     whole = np.trunc(scaled)
     cells[between] = (whole + (scaled - whole >= 0.5)).astype(np.int8)  # std::round: halves away from 0

@@ -89,10 +89,14 @@ def test_scale_rounds_halves_away_from_zero(tmp_path):
 
 
 def test_scale_and_trinary_make_translucent_pixels_unknown_and_do_not_average_alpha(tmp_path):
-    rgba = [[[255, 255, 255, 255], [255, 255, 255, 128], [0, 0, 0, 0], [0, 0, 0, 255]]]
+    # Humble averaged alpha in as a fourth channel (white at alpha 128 was free); since Jazzy any alpha
+    # below 255 is unknown. The second row is opaque: alpha flips with the rows.
+    rgba = [[[255, 255, 255, 255], [255, 255, 255, 128], [0, 0, 0, 0], [0, 0, 0, 255]],
+            [[255, 255, 255, 255], [255, 255, 255, 255], [0, 0, 0, 255], [0, 0, 0, 255]]]
     for mode in ("trinary", "scale"):
         ros_map = read_ros_map(write_map(tmp_path, rgba, image="map.png", mode=mode, free_thresh=0.25))
-        assert top_first(ros_map.grid.cells) == [[FREE, UNKNOWN, UNKNOWN, OCCUPIED]], mode
+        assert top_first(ros_map.grid.cells) == [[FREE, UNKNOWN, UNKNOWN, OCCUPIED],
+                                                 [FREE, FREE, OCCUPIED, OCCUPIED]], mode
 
 
 def test_raw_mode_keeps_values_up_to_100_and_ignores_negate_and_alpha(tmp_path):
