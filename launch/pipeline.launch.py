@@ -1,4 +1,4 @@
-"""ros2 launch m2h_ros pipeline.launch.py [episodes:=3] [controller:=doa] [task:=far_target] [live_view:=true] ...
+"""ros2 launch m2h_ros pipeline.launch.py [episodes:=3] [controller:=doa] [world:=map:PATH/map.yaml] ...
 
 The five nodes with their params files from the package share, as scripts/run_pipeline.py starts
 them (`ros2 launch m2h_ros pipeline.launch.py --show-args` lists every argument). Each node prepares
@@ -31,6 +31,7 @@ ARGUMENTS = (
     Argument("step_timeout_s", "sim_node", "step_timeout_s"),
     Argument("startup_timeout_s", "sim_node", "startup_timeout_s"),
     Argument("head", "sim_node", "head"),
+    Argument("world", "sim_node", "world"),
     Argument("controller", "controller_node", "policy"),
     Argument("controller_checkpoint", "controller_node", "checkpoint"),
     Argument("separator_checkpoint", "separator_node", "checkpoint"),

@@ -8,6 +8,7 @@ from m2h_ros.config import DEVICES, Config, setting
 from m2h_ros.core.audio.stft import AUDIO_OUTPUTS
 from m2h_ros.core.robot.base_motion import MotionLimits
 from m2h_ros.core.world.hrtf import parse_head
+from m2h_ros.core.world.worlds import parse_world_spec
 from m2h_ros.errors import ConfigError
 
 TASKS = ("near_target", "far_target")
@@ -24,6 +25,9 @@ class SimConfig(Config):
                         choices=TASKS)
     sound_split: str = setting("unheard", "sound clips: heard (training) or unheard", choices=SOUND_SPLITS)
     scene_split: str = setting("test", "scenes the episodes are drawn from", choices=SCENE_SPLITS)
+    world: str = setting("", "empty: the generated scenes of scene_split; map:PATH/map.yaml (a nav2 map) "
+                         "or mesh:PATH (glb, gltf, obj, ply): that world, with its PATH's .world.yaml "
+                         "settings when there is one")
     num_episodes: int = setting(5, "episodes to run before the node exits", min=1, max=100000)
     first_episode: int = setting(0, "index of the first episode in the episode file", min=0)
     mode: str = setting("lockstep", "lockstep: each step waits for the controller's action; "
@@ -61,6 +65,8 @@ class SimConfig(Config):
     def __post_init__(self) -> None:
         super().__post_init__()
         parse_head(self.head)
+        if self.world:
+            parse_world_spec(self.world)
         unknown = sorted(set(self.expect_nodes) - set(PIPELINE_NODES))
         if unknown:
             raise ConfigError(f"SimConfig.expect_nodes = {list(self.expect_nodes)}: unknown node(s) "

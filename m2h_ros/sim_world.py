@@ -64,7 +64,7 @@ def prepare_library(config: SimConfig) -> SoundLibrary:
 
 
 def episode_config(config: SimConfig) -> EpisodeConfig:
-    return EpisodeConfig(task=config.task, scene_split=config.scene_split, sound_split=config.sound_split,
+    return EpisodeConfig(task=config.task, scene_split=config.world or config.scene_split, sound_split=config.sound_split,
                          count=max(EPISODE_FILE_SIZE, config.first_episode + config.num_episodes),
                          scene_preset=config.scene_preset, min_source_distance=config.min_source_distance)
 

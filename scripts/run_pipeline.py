@@ -34,6 +34,7 @@ from pathlib import Path
 
 import yaml
 
+from m2h_ros.core.world.worlds import canonical_spec
 from m2h_ros.errors import M2HError
 from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_REMAPS
 
@@ -55,6 +56,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--first", type=int, default=0, help="index of the first test episode")
     parser.add_argument("--task", default="near_target", choices=("near_target", "far_target"))
     parser.add_argument("--sound-split", default="unheard", choices=("heard", "unheard"))
+    parser.add_argument("--world", default="", metavar="SPEC",
+                        help="the world: map:PATH/map.yaml (a nav2 map), mesh:PATH (glb, gltf, obj, ply); "
+                             "default: the generated test scenes")
     parser.add_argument("--controller", default=None, help="controller_node policy (default: its params file)")
     parser.add_argument("--separator-checkpoint", default=None, help="separator .pt (default: the shipped one)")
     parser.add_argument("--mode", default="lockstep", choices=("lockstep", "free_running"))
@@ -103,6 +107,8 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
         params["sim_node"].update(task=args.task, sound_split=args.sound_split, num_episodes=args.episodes,
                                   first_episode=args.first, mode=args.mode, step_timeout_s=args.step_timeout,
                                   expect_nodes=expect)
+        if args.world:
+            params["sim_node"]["world"] = canonical_spec(args.world)
         if args.rate is not None:
             params["sim_node"]["rate_hz"] = args.rate
         params["evaluator_node"]["output_dir"] = str(args.out / "scores")

@@ -102,7 +102,7 @@ class SimNode(Node):
         self.timer = self.create_timer(TICK_S, self.tick)
         self.step_timer = None
         self.get_logger().info(f"ready: {cfg.num_episodes} {cfg.task} episodes ({cfg.sound_split} sounds, "
-                               f"{cfg.scene_split} scenes) from #{cfg.first_episode}, {cfg.mode}")
+                               f"{cfg.world or cfg.scene_split + ' scenes'}) from #{cfg.first_episode}, {cfg.mode}")
 
     # --------------------------------------------------------------- callbacks
     def on_command(self, msg: MotionCommand) -> None:

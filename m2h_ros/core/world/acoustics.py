@@ -167,8 +167,8 @@ def _material_absorption(name: str) -> np.ndarray:
 
 def _polygon(corners: np.ndarray, outward: np.ndarray, absorption: np.ndarray,
              scattering: float) -> libroom.Wall:
-    """A libroom wall from (4, 3) corners whose normal points along ``outward`` (away from the room)."""
-    if float(np.dot(np.cross(corners[1] - corners[0], corners[2] - corners[1]), outward)) < 0:
+    """A libroom wall from (K, 3) planar corners whose normal points along ``outward`` (away from the room)."""
+    if float(np.dot(_newell_normal(corners), outward)) < 0:
         corners = corners[::-1]  # libroom's normal follows the right-hand rule of the corner order
     return libroom.Wall(corners.T.astype(np.float32), absorption.astype(np.float32),
                         np.full(BAND_CENTRES.size, scattering, np.float32))
@@ -199,8 +199,17 @@ def _cell_rectangles(cells: tuple[tuple[int, int], ...]) -> list[tuple[int, int,
     return [tuple(r) for r in rects]
 
 
+def _newell_normal(corners: np.ndarray) -> np.ndarray:
+    """Area-weighted normal (right-hand rule) of a planar polygon, convex or not (Newell's method)."""
+    after = np.roll(corners, -1, axis=0)
+    return 0.5 * np.cross(corners, after).sum(axis=0)
+
+
 def _room_faces(scene: Any) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
-    """Every reflecting polygon as (room it faces, (4, 3) corners, outward normal, absorption (B,))."""
+    """Every reflecting polygon as (room it faces, (K, 3) corners, outward normal, absorption (B,))."""
+    if scene.imported:
+        return [(face.room, np.asarray(face.corners, float), np.asarray(face.outward, float),
+                 _material_absorption(face.material)) for face in scene.surfaces]
     cell_room = {tuple(map(int, c)): i for i, room in enumerate(scene.rooms) for c in room.cells}
     faces = []
     for wall in scene.walls:
@@ -224,7 +233,11 @@ def _room_faces(scene: Any) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarra
 
 
 def _face_area(corners: np.ndarray) -> float:
-    return float(np.linalg.norm(corners[1] - corners[0]) * np.linalg.norm(corners[3] - corners[0]))
+    if len(corners) == 4 and np.allclose(corners[2] - corners[1], corners[3] - corners[0]) \
+            and abs(np.dot(corners[1] - corners[0], corners[3] - corners[0])) < 1e-9:
+        # A rectangle (every face of a generated scene): its sides' product, as the banks were built with.
+        return float(np.linalg.norm(corners[1] - corners[0]) * np.linalg.norm(corners[3] - corners[0]))
+    return float(np.linalg.norm(_newell_normal(corners)))
 
 
 def furnishing_area(scene: Any, room_index: int) -> np.ndarray:
@@ -282,6 +295,8 @@ def _walls_crossed(scene: Any, start: np.ndarray, ends: np.ndarray, height: floa
     d1, d2 = cross(a, b, p), cross(a, b, q)
     d3, d4 = cross(p, q, a), cross(p, q, b)
     proper = (d1 * d2 < 0) & (d3 * d4 < 0)
+    if scene.imported:  # an imported wall is solid between two faces: a path through it crosses both
+        return (proper.sum(axis=1) + 1) // 2
     return proper.sum(axis=1)
 
 

@@ -18,7 +18,8 @@ import numpy as np
 from tqdm import tqdm
 
 from m2h_ros.core.sounds.library import CATEGORIES, TARGET_CATEGORIES, SoundLibrary
-from m2h_ros.core.world.scene import SCENE_SPLITS, Scene, load_split
+from m2h_ros.core.world.scene import SCENE_SPLITS, Scene
+from m2h_ros.core.world.worlds import canonical_spec, is_world_spec, worlds_of
 from m2h_ros.errors import ConfigError, EpisodeError
 from m2h_ros.paths import data_dir
 
@@ -68,8 +69,9 @@ class Episode:
 
 
 def scene_at(split: str, preset: str, index: int) -> Scene:
-    """The ``index``-th scene of a split (scenes are memoised by the generator)."""
-    scenes = load_split(split, preset=preset)
+    """The ``index``-th scene of a split, or the world of a ``map:`` / ``mesh:`` spec (index 0); both
+    memoised."""
+    scenes = worlds_of(split, preset=preset)
     if not 0 <= index < len(scenes):
         raise EpisodeError(f"scene index {index} is not in split {split!r} ({len(scenes)} scenes)")
     return scenes[index]
@@ -91,7 +93,10 @@ class EpisodeConfig:
     scene_preset: str = "default"
 
     def __post_init__(self) -> None:
-        checks = {"task": self.task in TASKS, "scene_split": self.scene_split in SCENE_SPLITS,
+        if is_world_spec(self.scene_split):  # one stored form per world, whatever path named it
+            object.__setattr__(self, "scene_split", canonical_spec(self.scene_split))
+        checks = {"task": self.task in TASKS,
+                  "scene_split": self.scene_split in SCENE_SPLITS or is_world_spec(self.scene_split),
                   "sound_split": self.sound_split in SOUND_SPLITS, "scenario": self.scenario in SCENARIOS,
                   "count": self.count >= 1, "seed": self.seed >= 0,
                   "n_distractors": 1 <= self.n_distractors <= 4,
@@ -151,9 +156,9 @@ def _place(rng: np.random.Generator, scene: Scene, config: EpisodeConfig,
 def generate_episodes(config: EpisodeConfig, library: SoundLibrary, *, progress: bool = False
                       ) -> list[Episode]:
     """``config.count`` episodes spread round-robin over the split's scenes; deterministic by seed."""
-    scenes = load_split(config.scene_split, preset=config.scene_preset)
+    scenes = worlds_of(config.scene_split, preset=config.scene_preset)
     rng = np.random.default_rng([config.seed, EPISODES_VERSION])
-    prefix = f"{config.scene_split}/{config.task}/{config.sound_split}/{config.scenario}"
+    prefix = f"{_split_label(config.scene_split)}/{config.task}/{config.sound_split}/{config.scenario}"
     return [draw_episode(rng, config, k % len(scenes), library, episode_id=f"{prefix}/{k:06d}")
             for k in tqdm(range(config.count), desc="episodes", disable=not progress)]
 
@@ -215,8 +220,17 @@ def load_episodes(path: str | Path, *, library: SoundLibrary | None = None) -> l
     return episodes
 
 
+def _split_label(split: str) -> str:
+    """A split's name in episode ids and file names: itself, or an imported world's kind, name and
+    fingerprint (a changed map or mesh gets episodes of its own)."""
+    if not is_world_spec(split):
+        return split
+    world = worlds_of(split)[0]
+    return f"{world.source}-{world.scene_id}-{world.fingerprint()}"
+
+
 def episode_path(config: EpisodeConfig, library: SoundLibrary) -> Path:
-    name = (f"{config.scene_split}-{config.task}-{config.sound_split}-{config.scenario}-"
+    name = (f"{_split_label(config.scene_split)}-{config.task}-{config.sound_split}-{config.scenario}-"
             f"{config.digest()}-{library.fingerprint}.json")
     return data_dir() / "episodes" / f"v{EPISODES_VERSION}" / name
 

@@ -1,4 +1,8 @@
-"""Navigation grid: one node per free 1 m floor cell, 4 headings, MoveForward transitions, geodesics.
+"""Navigation lattice: one node per free lattice cell, 4 headings, MoveForward transitions, geodesics.
+
+Generated scenes use 1 m cells from the origin (Move2Hear's Matterport grid); an imported world lays
+the lattice at its own spacing (1 m by default, 0.5 m as Replica's) from its own corner, so a node sits
+at ``origin + (cell + 0.5) * spacing`` and geodesics are in metres either way.
 
 Headings: h in {0, 1, 2, 3} faces h * 90 degrees counter-clockwise from +x (0: +x, 1: +y, 2: -x,
 3: -y). TurnLeft is (h + 1) % 4, TurnRight is (h - 1) % 4.
@@ -44,10 +48,15 @@ class NavGrid:
     """
 
     def __init__(self, cells: np.ndarray, room_of: np.ndarray,
-                 can_cross: Callable[[tuple[int, int], tuple[int, int]], bool]) -> None:
+                 can_cross: Callable[[tuple[int, int], tuple[int, int]], bool], *,
+                 spacing: float = 1.0, origin: tuple[float, float] = (0.0, 0.0)) -> None:
         cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
+        self.spacing, self.origin = float(spacing), (float(origin[0]), float(origin[1]))
         self.cells = _readonly(cells)                                   # (N, 2) int cell (ix, iy)
-        self.positions = _readonly(cells.astype(np.float64) + 0.5)      # (N, 2) metres
+        positions = cells.astype(np.float64) + 0.5
+        if self.spacing != 1.0 or self.origin != (0.0, 0.0):
+            positions = np.asarray(self.origin) + positions * self.spacing
+        self.positions = _readonly(positions)                           # (N, 2) metres
         self.room_of = _readonly(np.asarray(room_of, dtype=np.int64))   # (N,)
         self._node_of_cell = {(int(x), int(y)): n for n, (x, y) in enumerate(cells)}
         forward = np.repeat(np.arange(len(cells))[:, None], N_HEADINGS, axis=1)
@@ -60,9 +69,9 @@ class NavGrid:
         self.forward = _readonly(forward)                               # (N, 4) int
         adjacency = self._adjacency()
         self.n_components = int(connected_components(adjacency, directed=False)[0])
-        # Unweighted shortest paths = BFS; every edge is 1 m long.
-        self.geodesic = _readonly(shortest_path(adjacency, unweighted=True,
-                                                directed=False).astype(np.float32))
+        # Unweighted shortest paths = BFS; every edge is one spacing long.
+        hops = shortest_path(adjacency, unweighted=True, directed=False)
+        self.geodesic = _readonly((hops * self.spacing if self.spacing != 1.0 else hops).astype(np.float32))
 
     @property
     def n_nodes(self) -> int:

@@ -1,4 +1,11 @@
-"""Procedural indoor scenes: connected rooms on a 1 m lattice, doors, furniture, materials.
+"""The world model, and procedural indoor scenes: connected rooms on a 1 m lattice, doors, furniture.
+
+``Scene`` is the one geometry type that the acoustics, the camera, the navigation lattice, the episodes
+and the nodes read, whatever made it: this module's generator (``source == "generated"``), a robot's
+nav2 map or a scanned mesh (``source`` "map" / "mesh", built by ``plan_world``). Generated scenes
+describe rooms as 1 m cells and walls as axis-aligned rectangles; an imported world describes rooms as
+polygons over its floor-plan raster (``plan``, ``room_labels``), its acoustic surfaces as explicit
+polygons (``surfaces``) and what the camera sees as triangles (``mesh``).
 
 A scene is a W x H block of 1 m floor cells cut into rectangles by random guillotine cuts; two
 adjacent rectangles are merged into one L/T/Z-shaped (non-convex) room in the default preset.
@@ -19,6 +26,7 @@ import json
 from collections import deque
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -83,28 +91,32 @@ _FINGERPRINT_VERSION = 2
 @dataclass(frozen=True)
 class Room:
     name: str
-    cells: tuple[tuple[int, int], ...]   # 1x1 m floor cells (ix, iy), sorted
+    cells: tuple[tuple[int, int], ...]   # 1x1 m floor cells (ix, iy), sorted; () in an imported world
     wall_material: str
     floor_material: str
     ceiling_material: str
     color: tuple[float, float, float]
     furnishing: str = "bare"  # a key of FURNISHINGS
+    polygon: tuple[tuple[float, float], ...] = ()  # imported world: the floor's outline, metres
+    floor_area: float = 0.0                        # imported world: m^2 of floor
 
     @property
     def area(self) -> float:
-        return float(len(self.cells))
+        return float(len(self.cells)) if self.cells else self.floor_area
 
     def outline(self) -> np.ndarray:
         """Counter-clockwise polygon corners (K, 2) of the room's floor, collinear points removed."""
-        return cells_outline(self.cells)
+        return cells_outline(self.cells) if self.cells else np.asarray(self.polygon, np.float64)
 
 
 @dataclass(frozen=True)
 class Wall:
-    """Vertical axis-aligned rectangle from ``p0`` to ``p1`` (p0 < p1 along the wall), z0..z1.
+    """Vertical rectangle from ``p0`` to ``p1`` in plan, z0..z1.
 
-    ``rooms`` = (room on the low side, room on the high side) of the wall line: for a wall at
-    x = const, (room at smaller x, room at larger x); for y = const, (room below, room above).
+    Generated scenes: axis-aligned (p0 < p1 along the wall), ``rooms`` = (room on the low side, room
+    on the high side) of the wall line: for a wall at x = const, (room at smaller x, room at larger x);
+    for y = const, (room below, room above). Imported worlds: any direction, ``rooms`` = (the room it
+    faces, the room behind it or -1 for solid).
     """
     p0: tuple[float, float]
     p1: tuple[float, float]
@@ -128,9 +140,19 @@ class Obstacle:
     material: str
 
 
+@dataclass(frozen=True)
+class Surface:
+    """One planar reflecting polygon of an imported world's acoustics: the room it faces, its corners
+    (K, 3) in order, the unit normal pointing away from that room, and its material."""
+    room: int
+    corners: tuple[tuple[float, float, float], ...]
+    outward: tuple[float, float, float]
+    material: str
+
+
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """One floor plan. Compare scenes with ``fingerprint()``; equality is identity."""
+    """One world. Compare scenes with ``fingerprint()``; equality is identity."""
     scene_id: str
     seed: int
     height: float
@@ -141,10 +163,22 @@ class Scene:
     preset: str = "default"
     door_height: float = 2.1
     size: tuple[int, int] = field(default=(0, 0))   # (W, H) cells of the bounding block
+    source: str = "generated"   # "generated", "map" (a nav2 map) or "mesh" (a scanned or exported mesh)
+    # Imported worlds only: the floor-plan raster (a map's own cells), each plan cell's room (-1: none),
+    # the acoustic polygons, what the camera sees, and the hash of the inputs and settings.
+    plan: Any = None                  # frames.OccupancyGrid
+    room_labels: np.ndarray | None = None
+    surfaces: tuple[Surface, ...] = ()
+    mesh: Any = None                  # raycast.TriangleMesh
+    import_fingerprint: str = ""
 
     def fingerprint(self) -> str:
         """Stable hash of the geometry and materials (not colours or ids): a cache key."""
-        return self._fingerprint
+        return self.import_fingerprint or self._fingerprint
+
+    @property
+    def imported(self) -> bool:
+        return self.source != "generated"
 
     @cached_property
     def _fingerprint(self) -> str:
@@ -174,6 +208,11 @@ class Scene:
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of the floor plan, metres."""
+        if self.imported:
+            rows, cols = self.plan.cells.shape
+            corners = self.plan.cell_centres(np.array([-0.5, cols - 0.5, -0.5, cols - 0.5]),
+                                             np.array([-0.5, -0.5, rows - 0.5, rows - 0.5]))
+            return (*(float(v) for v in corners.min(axis=0)), *(float(v) for v in corners.max(axis=0)))
         return 0.0, 0.0, float(self.size[0]), float(self.size[1])
 
     @property
@@ -183,14 +222,19 @@ class Scene:
 
     def room_at(self, xy) -> int:
         """Room index at floor point ``xy`` (metres), -1 outside."""
+        if self.imported:
+            ix, iy = (int(v) for v in self.plan.cell_of(np.asarray(xy, dtype=np.float64)[:2]))
+            rows, cols = self.room_labels.shape
+            return int(self.room_labels[iy, ix]) if 0 <= ix < cols and 0 <= iy < rows else -1
         ix, iy = (int(np.floor(v)) for v in np.asarray(xy, dtype=np.float64)[:2])
         if 0 <= ix < self.size[0] and 0 <= iy < self.size[1]:
             return int(self.cell_room[ix, iy])
         return -1
 
     def outline(self) -> np.ndarray:
-        """Counter-clockwise corners (K, 2) of the whole floor plan."""
+        """Counter-clockwise corners (K, 2) of a generated scene's whole floor plan."""
         return cells_outline([c for r in self.rooms for c in r.cells])
+
 
 
 @dataclass(frozen=True)

@@ -27,14 +27,13 @@ def draw_scene(ax: Axes, scene: Scene, *, sources=None, path=None, labels: bool 
     CATEGORY_MARKERS and role "target" or "distractor" (default: the first is the target).
     ``path``: sequence of (node, heading) pairs, drawn as a line with heading arrows.
     """
+    if scene.imported:
+        _draw_plan(ax, scene.plan)
     for room in scene.rooms:
         ax.add_patch(Polygon(room.outline(), closed=True, facecolor=(*room.color, 0.35),
                              edgecolor="none", zorder=0))
         if labels:
-            # The cell nearest the centroid: an L room's centroid can lie outside the room.
-            cells = np.asarray(room.cells, dtype=float) + 0.5
-            centre = cells[np.argmin(((cells - cells.mean(axis=0)) ** 2).sum(axis=1))]
-            ax.text(*centre, f"{room.name}\n{room.wall_material}\n{room.floor_material}",
+            ax.text(*_label_point(room), f"{room.name}\n{room.wall_material}\n{room.floor_material}",
                     ha="center", va="center", fontsize=6, color="#333333", zorder=1)
     for wall in scene.walls:
         xs, ys = (wall.p0[0], wall.p1[0]), (wall.p0[1], wall.p1[1])
@@ -58,6 +57,26 @@ def draw_scene(ax: Axes, scene: Scene, *, sources=None, path=None, labels: bool 
     ax.set_ylabel("y (m)")
     ax.set_title(f"{scene.scene_id}  ({scene.fingerprint()})", fontsize=9)
     return ax
+
+
+def _label_point(room) -> np.ndarray:
+    """A point inside the room for its label: an L room's centroid can lie outside it."""
+    if not room.cells:
+        from shapely.geometry import Polygon as Shape
+
+        point = Shape(room.polygon).buffer(0).representative_point()
+        return np.array([point.x, point.y])
+    cells = np.asarray(room.cells, dtype=float) + 0.5
+    return cells[np.argmin(((cells - cells.mean(axis=0)) ** 2).sum(axis=1))]
+
+
+def _draw_plan(ax: Axes, plan) -> None:
+    """An imported world's own raster under it: occupied dark, unknown light, free white."""
+    rows, cols = plan.cells.shape
+    corners = plan.cell_centres(*np.meshgrid(np.arange(cols + 1) - 0.5, np.arange(rows + 1) - 0.5))
+    shade = np.where(plan.cells == 0, 1.0, np.where(plan.cells < 0, 0.85, 0.35))
+    ax.pcolormesh(corners[..., 0], corners[..., 1], shade, cmap="gray", vmin=0, vmax=1, shading="flat",
+                  zorder=-1, rasterized=True)
 
 
 def _draw_sources(ax: Axes, sources) -> None:
