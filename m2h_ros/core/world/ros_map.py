@@ -1,5 +1,7 @@
 """nav2 map files without ROS: a ``map.yaml`` and its image, read as nav2_map_server's ``loadMapFromYaml``
-reads them (Jazzy and later, map_io.cpp) and written as ``map_saver_cli`` writes them.
+reads them (map_io.cpp of nav2 1.3.7 and later: Jazzy since 2025, Kilted, Rolling) and written as
+``map_saver_cli`` writes them. Humble's loader averaged R, G, B (and, in trinary, inverted alpha) and
+compared strictly; for opaque grey images the two differ only at pixels exactly on a threshold.
 
 Reading an image pixel (8 bits a channel):
 * grey: colour is turned grey as GraphicsMagick's GrayscaleType does it, Rec. 601 luma
@@ -12,9 +14,9 @@ Reading an image pixel (8 bits a channel):
 * raw: the grey value itself when 0..100, else UNKNOWN (negate and alpha play no part).
 The image's top row is the grid's last row: OccupancyGrid row 0 is the bottom (smallest y).
 
-Unlike map_server, this reader refuses what map_server would read without complaint but mean something
-else by: unknown keys (a misspelt ``negate`` is otherwise silently missing), 16-bit images (map_server
-scales them down), thresholds outside [0, 1] or not ordered, and a resolution <= 0.
+Beyond map_server, this reader refuses unknown keys (map_server ignores them, so a misspelt ``mode`` reads
+the map as trinary), 16-bit images (map_server scales them to 8 bits), thresholds outside [0, 1] or not
+ordered, and a resolution <= 0.
 """
 
 from __future__ import annotations
