@@ -42,6 +42,7 @@ from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
 from m2h_ros.core.world.scene import SCENE_SPLITS  # noqa: E402
+from m2h_ros.core.world.worlds import load_world, parse_world_spec  # noqa: E402
 from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator  # noqa: E402
@@ -70,6 +71,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scene-split", default="test", choices=tuple(SCENE_SPLITS),
                         help="val: the validation scenes' episodes (for choosing models), test: the reported ones; "
                              "train / train24 / train48: the training scenes' (a diagnostic: a policy where it trained)")
+    parser.add_argument("--world", default="", metavar="SPEC",
+                        help="evaluate in an imported world instead of --scene-split's scenes: map:PATH/map.yaml "
+                             "(a nav2 map) or mesh:PATH (glb, gltf, obj, ply)")
+    parser.add_argument("--min-source-distance", type=float, default=8.0,
+                        help="minimum geodesic metres between sources (8 as the original; a small world needs less)")
     parser.add_argument("--count", type=int, default=1000, help="episodes per sound split")
     parser.add_argument("--first", type=int, default=0, help="index of the first episode of the split")
     parser.add_argument("--slots", type=int, default=16, help="episodes played at once")
@@ -93,10 +99,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def select_episodes(task: str, split: str, *, first: int, count: int, library: SoundLibrary,
-                    scene_split: str = "test") -> list[Episode]:
+                    scene_split: str = "test", min_source_distance: float = 8.0) -> list[Episode]:
     """Episodes first .. first + count - 1 of the standard episode file of a task x sound split
-    (``scene_split`` test, val, or a training split)."""
-    episodes = episodes_for(EpisodeConfig(task=task, scene_split=scene_split, sound_split=split), library)
+    (``scene_split`` test, val, a training split or an imported world's spec)."""
+    episodes = episodes_for(EpisodeConfig(task=task, scene_split=scene_split, sound_split=split,
+                                          min_source_distance=min_source_distance), library)
     if first < 0 or count < 1 or first + count > len(episodes):
         raise ConfigError(f"--first {first} --count {count} selects outside the {len(episodes)} "
                           f"{task} {split} {scene_split} episodes")
@@ -120,6 +127,14 @@ def run(args: argparse.Namespace, controllers: Sequence[str], episodes: Sequence
                                        threads=args.threads, progress=not args.no_progress)
         model_files[name] = controller.model_files()
     return results, model_files
+
+
+def world_label(spec: str) -> str:
+    """An imported world as a table names it: its kind, file (repo-relative) and fingerprint; "" for none."""
+    if not spec:
+        return ""
+    world = load_world(spec)
+    return f"{world.source} {repo_relative(parse_world_spec(spec)[1])} ({world.fingerprint()})"
 
 
 def describe_models(model_files: dict[str, list[Path]]) -> dict[str, list[str]]:
@@ -149,14 +164,17 @@ def main(argv: list[str] | None = None) -> int:
     loaded = load_separator(args.checkpoint)
     torch.set_num_threads(args.threads)
     library = SoundLibrary.load()
+    scene_split = args.world or args.scene_split
     episodes = [e for split in splits for e in select_episodes(args.task, split, first=args.first, count=args.count,
-                                                                 library=library, scene_split=args.scene_split)]
+                                                                 library=library, scene_split=scene_split,
+                                                                 min_source_distance=args.min_source_distance)]
     env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
                            mic_noise=args.mic_noise, acoustics=AcousticsConfig(head=args.head))
     results, model_files = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
     meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
             "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",
-            "task": args.task, "scene_split": args.scene_split,
+            "task": args.task, "scene_split": args.scene_split if not args.world else "",
+            "world": world_label(args.world),
             "sound_splits": splits, "first": args.first, "count_per_split": args.count,
             "head": args.head, "controller_seed": args.seed, "mic_noise": args.mic_noise, "slots": args.slots,
             "threads": args.threads, "wall_seconds": round(time.perf_counter() - started, 1),
@@ -168,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     setup = (f"separator `{Path(loaded.path).name}` (sha256 {meta['separator_sha256']}), "
              f"acoustics {meta['acoustics']}"
              + "".join(f"; {name}: {', '.join(files)}" for name, files in meta["models"].items()))
-    paths = write_results(results, args.out, title=f"{args.task} {args.scene_split} episodes, {' + '.join(splits)} sounds",
+    where = world_label(args.world) or args.scene_split
+    paths = write_results(results, args.out, title=f"{args.task} {where} episodes, {' + '.join(splits)} sounds",
                           meta=meta, command=command, setup=setup, reference=reference)
     print(markdown_table(summarize(results)))
     if reference:

@@ -1,6 +1,7 @@
 """Save a top-down picture of a scene and a few camera views (RGB + depth) as PNGs.
 
     python scripts/view_scene.py --split test --index 0 --out /tmp/scene_view
+    python scripts/view_scene.py --world map:PATH/map.yaml --out /tmp/my_building
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 from m2h_ros.core.world.camera import CameraConfig, CameraViews
 from m2h_ros.core.world.scene import PRESETS, SCENE_SPLITS, load_split
 from m2h_ros.core.world.viewer import camera_strip, plot_episode, save_camera_views
+from m2h_ros.core.world.worlds import load_world_with_report
 from m2h_ros.errors import reports_errors
 
 
@@ -23,11 +25,18 @@ def main(argv: list[str] | None = None) -> int | None:
     parser.add_argument("--split", choices=sorted(SCENE_SPLITS), default="test")
     parser.add_argument("--index", type=int, default=0)
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
+    parser.add_argument("--world", default="", metavar="SPEC",
+                        help="an imported world instead: map:PATH/map.yaml or mesh:PATH (glb, gltf, obj, ply)")
     parser.add_argument("--size", type=int, default=128, help="camera width = height, pixels")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
 
-    scenes = load_split(args.split, preset=args.preset)
+    if args.world:
+        scene, report = load_world_with_report(args.world)
+        print(f"{scene.scene_id}: {report.describe()}")
+        scenes, args.index = [scene], 0
+    else:
+        scenes = load_split(args.split, preset=args.preset)
     if not 0 <= args.index < len(scenes):
         parser.error(f"--index must be in [0, {len(scenes)}) for split {args.split}")
     scene = scenes[args.index]

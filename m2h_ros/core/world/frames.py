@@ -95,7 +95,10 @@ class OccupancyGrid:
 
 def occupancy_grid(scene: Scene, *, resolution: float = 0.1) -> OccupancyGrid:
     """The floor plan seen from above: rooms free, walls and furniture occupied (doors open), outside
-    unknown. A margin of one cell surrounds the plan, so its outer walls are drawn whole."""
+    unknown. A margin of one cell surrounds the plan, so its outer walls are drawn whole. An imported
+    world's is its own raster (a nav2 map's cells at their resolution and origin, as map_server has them)."""
+    if scene.imported:
+        return scene.plan
     xmin, ymin, xmax, ymax = scene.bounds
     origin = (xmin - resolution, ymin - resolution)
     cols = int(round((xmax - xmin) / resolution)) + 2

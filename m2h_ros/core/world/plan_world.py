@@ -38,6 +38,7 @@ from m2h_ros.errors import ConfigError
 #: Bump whenever a change here changes the world built from the same inputs (it keys every cache).
 PLAN_WORLD_VERSION = 1
 WALL_THICKNESS = 0.25  # m: an isolated occupied blob no thicker than this is a piece of wall, not furniture
+LATTICE_PHASES = (0.0, 0.25, 0.5, 0.75)  # offsets tried per axis, in units of the spacing
 DETOUR = 1.5  # a lattice edge may bend round a door jamb by at most this factor of its length
 _SPECK_AREA = 0.03  # m^2: occupied or unknown specks smaller than this are sensor noise in free space
 
@@ -156,7 +157,8 @@ def build_plan_world(plan: OccupancyGrid, *, free: np.ndarray, occupied: np.ndar
                           f"free_thresh and mode)")
     if floor[0].any() or floor[-1].any() or floor[:, 0].any() or floor[:, -1].any():
         raise ConfigError(f"{what}: free space runs off the edge of the map, so the building is not closed; "
-                          f"the map must be surrounded by walls or unknown space")
+                          f"the map must be surrounded by walls or unknown space (a map saved by nav2 before "
+                          f"1.3.7 says free_thresh: 0.25, which reads its unknown grey 205 as free: set 0.196)")
     labels = _rooms(floor, res, settings, user_labels, what)
     n_rooms = int(labels.max())
     specs = _room_specs(settings, n_rooms, labels, plan)
@@ -407,18 +409,57 @@ def _hull(points: np.ndarray) -> np.ndarray:
 
 def _lattice(free: np.ndarray, labels: np.ndarray, plan: OccupancyGrid, settings: PlanSettings,
              what: str) -> tuple[NavGrid, tuple[int, ...]]:
-    """Nodes where the robot fits, edges where it drives straight between them; the largest part."""
-    res, spacing, radius = plan.resolution, settings.lattice_spacing, settings.robot_radius
+    """Nodes where the robot fits, edges where it can drive from one to the next; the largest part.
+
+    A wall or a door jamb on a lattice line can cut a building in two that a lattice shifted by a
+    fraction of its spacing connects, so the lattice is laid at LATTICE_PHASES offsets (in x and y)
+    and the one whose largest part has the most nodes (then edges; then the smallest offset) is kept.
+    """
+    res = plan.resolution
     # Clearance of a cell centre: distance to the nearest blocked cell's edge.
     clearance = ndimage.distance_transform_edt(free) * res - res / 2
-    rows, cols = free.shape
+    candidates = []
+    for phase_x in LATTICE_PHASES:
+        for phase_y in LATTICE_PHASES:
+            graph = _lattice_graph(clearance, plan, settings, (phase_x, phase_y))
+            if graph is not None:
+                candidates.append(graph)
+    if not candidates:
+        raise ConfigError(f"{what}: no place has {settings.robot_radius} m of clearance for the robot on a "
+                          f"{settings.lattice_spacing} m lattice; lower robot_radius or lattice_spacing")
+    cells, origin, edges, part, sizes = max(candidates, key=lambda g: (g[4].max(), len(g[2])))[:5]
+    keep = int(np.argmax(sizes))
+    dropped = tuple(sorted((int(s) for k, s in enumerate(sizes) if k != keep), reverse=True))
+    kept = np.flatnonzero(part == keep)
+    kept_cells = cells[kept]
+    order = np.lexsort((kept_cells[:, 0], kept_cells[:, 1]))  # row-major, as generated scenes
+    kept, kept_cells = kept[order], kept_cells[order]
+    old_of_cell = {tuple(c): int(old) for c, old in zip(kept_cells.tolist(), kept)}
+
+    def can_cross(a, b) -> bool:
+        key = (old_of_cell[tuple(a)], old_of_cell[tuple(b)])
+        return (min(key), max(key)) in edges
+
+    spacing = settings.lattice_spacing
+    ix, iy = plan.cell_of(np.asarray(origin) + (kept_cells + 0.5) * spacing)
+    grid = NavGrid(kept_cells, labels[iy, ix] - 1, can_cross, spacing=spacing, origin=origin)
+    return grid, dropped
+
+
+def _lattice_graph(clearance: np.ndarray, plan: OccupancyGrid, settings: PlanSettings, phase):
+    """The lattice at one offset: (cells (N, 2), origin, edge set, component of each node, component
+    sizes), or None where no node fits."""
+    res, spacing, radius = plan.resolution, settings.lattice_spacing, settings.robot_radius
+    rows, cols = clearance.shape
     corners = plan.cell_centres(np.array([-0.5, cols - 0.5, -0.5, cols - 0.5]),
                                 np.array([-0.5, -0.5, rows - 0.5, rows - 0.5]))
-    lo = np.floor(corners.min(axis=0) / spacing).astype(np.int64)
-    hi = np.ceil(corners.max(axis=0) / spacing).astype(np.int64)
-    gx, gy = np.meshgrid(np.arange(lo[0], hi[0]), np.arange(lo[1], hi[1]), indexing="ij")
-    cells = np.stack([gx.ravel(), gy.ravel()], axis=1) - lo
-    points = (cells + lo + 0.5) * spacing
+    shift = np.asarray(phase) * spacing
+    lo = np.floor((corners.min(axis=0) - shift) / spacing).astype(np.int64) - 1
+    hi = np.ceil((corners.max(axis=0) - shift) / spacing).astype(np.int64)
+    origin = tuple(float(v) for v in lo * spacing + shift)
+    gx, gy = np.meshgrid(np.arange(hi[0] - lo[0]), np.arange(hi[1] - lo[1]), indexing="ij")
+    cells = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    points = np.asarray(origin) + (cells + 0.5) * spacing
 
     def clear(xy: np.ndarray) -> np.ndarray:
         ix, iy = plan.cell_of(xy)
@@ -430,14 +471,12 @@ def _lattice(free: np.ndarray, labels: np.ndarray, plan: OccupancyGrid, settings
     ok = clear(points) >= radius
     cells, points = cells[ok], points[ok]
     if len(cells) == 0:
-        raise ConfigError(f"{what}: no place has {radius} m of clearance for the robot on a "
-                          f"{spacing} m lattice; lower robot_radius or lattice_spacing")
+        return None
     index = {tuple(c): n for n, c in enumerate(cells.tolist())}
     samples = np.linspace(0.0, 1.0, max(3, int(np.ceil(spacing / (res / 2))) + 1))
     src, dst = [], []
     for step in HEADING_STEPS[:2].tolist():  # +x and +y; the graph is undirected
-        target = cells + step
-        other = np.array([index.get(tuple(t), -1) for t in target.tolist()])
+        other = np.array([index.get(tuple(t), -1) for t in (cells + step).tolist()])
         has = np.flatnonzero(other >= 0)
         if len(has) == 0:
             continue
@@ -451,27 +490,9 @@ def _lattice(free: np.ndarray, labels: np.ndarray, plan: OccupancyGrid, settings
         src += has[fits].tolist()
         dst += other[has][fits].tolist()
     n = len(cells)
-    adjacency = csr_matrix((np.ones(len(src)), (src, dst)), shape=(n, n))
-    n_parts, part = connected_components(adjacency, directed=False)
-    sizes = np.bincount(part, minlength=n_parts)
-    keep = int(np.argmax(sizes))
-    dropped = tuple(sorted((int(s) for k, s in enumerate(sizes) if k != keep), reverse=True))
-    kept = np.flatnonzero(part == keep)
+    n_parts, part = connected_components(csr_matrix((np.ones(len(src)), (src, dst)), shape=(n, n)), directed=False)
     edges = {(min(a, b), max(a, b)) for a, b in zip(src, dst)}
-    kept_cells = cells[kept]
-    order = np.lexsort((kept_cells[:, 0], kept_cells[:, 1]))  # row-major, as generated scenes
-    kept, kept_cells = kept[order], kept_cells[order]
-    old_of_cell = {tuple(c): int(old) for c, old in zip(kept_cells.tolist(), kept)}
-
-    def can_cross(a, b) -> bool:
-        key = (old_of_cell[tuple(a)], old_of_cell[tuple(b)])
-        return (min(key), max(key)) in edges
-
-    node_points = (kept_cells + lo + 0.5) * spacing
-    ix, iy = plan.cell_of(node_points)
-    room_of = labels[iy, ix] - 1
-    grid = NavGrid(kept_cells, room_of, can_cross, spacing=spacing, origin=tuple(lo * spacing))
-    return grid, dropped
+    return cells, origin, edges, part, np.bincount(part, minlength=n_parts)
 
 
 def _drive_length(fits: np.ndarray, plan: OccupancyGrid, a: np.ndarray, b: np.ndarray) -> float:
