@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from m2h_ros.core.results import markdown_table, summarize
+from m2h_ros.core.world.worlds import load_world
 from m2h_ros.errors import BagError, ConfigError
 from m2h_ros.io.replay import BagReplay, ReplayConfig, replay_bags, write_replay
 
@@ -39,7 +40,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--workers", type=int, default=1,
                         help="bags replayed at once, one process each (same output; default: 1)")
     parser.add_argument("--no-plots", action="store_true", help="write tables only")
+    parser.add_argument("--world", default="", metavar="SPEC",
+                        help="the imported world the runs should have played in (map:PATH/map.yaml or mesh:PATH): "
+                             "an episode recorded in another world, or another version of it, is a problem")
     return parser
+
+
+def check_world(replay: BagReplay, world_id: str, spec: str) -> None:
+    """A problem for every episode of the bag recorded in another world than ``world_id`` (``spec``'s)."""
+    for result in replay.results:
+        if result.scene_id != world_id:
+            replay.problems.append(BagError(
+                f"{replay.bag}: episode {result.episode_id} was recorded in world {result.scene_id}, not in "
+                f"{world_id} ({spec}): scored against another world"))
 
 
 def _one_line(text: str) -> str:
@@ -54,6 +67,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"m2h-eval: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FATAL
+    try:
+        world = load_world(args.world).world_id if args.world else ""
+    except ConfigError as exc:
+        print(f"m2h-eval: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FATAL
     replays: list[BagReplay] = []
     unreadable = 0
     for bag, replay in zip(args.bags, in_order, strict=True):
@@ -61,6 +79,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"m2h-eval: error: {_one_line(replay)}", file=sys.stderr)
             unreadable += 1
             continue
+        if world:
+            check_world(replay, world, args.world)
         replays.append(replay)
         c = replay.comparison
         print(f"{bag}: {len(replay.results)} episode(s), {replay.steps_scored} step(s) scored; "

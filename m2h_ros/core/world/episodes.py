@@ -179,7 +179,7 @@ def draw_episode(rng: np.random.Generator, config: EpisodeConfig, scene_index: i
     categories = _categories(rng, config)
     clips = tuple(library.sample_id(rng, category=c, split=config.sound_split) for c in categories)
     return Episode(
-        episode_id=episode_id, scene_id=scene.scene_id, scene_split=config.scene_split,
+        episode_id=episode_id, scene_id=scene.world_id, scene_split=config.scene_split,
         scene_index=scene_index, scene_preset=config.scene_preset, task=config.task,
         sound_split=config.sound_split, scenario=config.scenario, max_steps=config.steps,
         start_node=start, start_heading=int(rng.integers(4)), source_nodes=tuple(sources),

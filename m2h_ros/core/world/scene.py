@@ -180,6 +180,12 @@ class Scene:
     def imported(self) -> bool:
         return self.source != "generated"
 
+    @property
+    def world_id(self) -> str:
+        """What episodes, EpisodeInfo and so bags name the scene by: its id, and for an imported world
+        also its fingerprint, so a bag says which version of a map or mesh it was recorded in."""
+        return f"{self.scene_id}@{self.fingerprint()}" if self.imported else self.scene_id
+
     @cached_property
     def _fingerprint(self) -> str:
         canonical = {
