@@ -54,7 +54,7 @@ class MeshRenderer:
         cfg = self.config
         x, y = (float(v) for v in np.asarray(xy, dtype=np.float64)[:2])
         cos, sin = np.float32(np.cos(angle)), np.float32(np.sin(angle))
-        rays = self._rays.copy()                           # the caster reads it while another frame may turn it
+        rays = self._rays.copy()                           # per frame: renders may run on several threads
         rays[..., 0] = cos + self._col_offset * sin        # right = (sin, -cos): clockwise from forward
         rays[..., 1] = sin - self._col_offset * cos
         distance, face = self._caster.cast((x, y, self.eye_z), rays.reshape(-1, 3))
