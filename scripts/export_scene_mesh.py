@@ -1,6 +1,9 @@
 """Export a generated scene as a triangle mesh (glb, obj or ply, by the suffix of --out) in the camera's colours.
 
     python scripts/export_scene_mesh.py --split test --index 0 --out scene.glb
+    python scripts/export_scene_mesh.py --split test --index 0 --yaw 30 --out turned.glb   # walls off the axes
+
+Coordinates are metres; glb is y-up as glTF specifies (the scene's z is glTF's y), obj and ply keep z up.
 
 glb and obj hold one node (obj: one object and group) per part, named as the part ("wall:brickwork",
 "floor:carpet_thin", ...), with the face colours as vertex colours (each quad has vertices of its own, so
@@ -46,8 +49,18 @@ def single_mesh(mesh: TriangleMesh) -> trimesh.Trimesh:
                            face_attributes={"part": mesh.face_part.astype(np.int32)}, process=False)
 
 
+def turned(mesh: TriangleMesh, yaw_deg: float) -> TriangleMesh:
+    """The mesh turned by ``yaw_deg`` about the vertical through the origin."""
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    vertices = mesh.vertices @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return TriangleMesh(vertices, mesh.faces, mesh.face_colors, mesh.face_part, mesh.parts)
+
+
 def export_bytes(mesh: TriangleMesh, file_type: str) -> bytes:
-    """The mesh encoded as ``file_type`` (one of FORMATS)."""
+    """The mesh encoded as ``file_type`` (one of FORMATS); glb turned to glTF's y-up."""
+    if file_type == "glb":  # z-up (x, y, z) is glTF's (x, z, -y)
+        vertices = mesh.vertices[:, [0, 2, 1]] * [1.0, 1.0, -1.0]
+        mesh = TriangleMesh(vertices, mesh.faces, mesh.face_colors, mesh.face_part, mesh.parts)
     data = (single_mesh(mesh) if file_type == "ply" else part_scene(mesh)).export(file_type=file_type)
     if file_type == "obj":   # trimesh names objects ("o"); readers that split by group ("g") get the names too
         data = re.sub(r"^o (.*)$", r"o \1\ng \1", data, flags=re.MULTILINE)
@@ -65,6 +78,7 @@ def main(argv: list[str] | None = None) -> int | None:
     parser.add_argument("--split", choices=sorted(SCENE_SPLITS), default="test")
     parser.add_argument("--index", type=int, default=0)
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
+    parser.add_argument("--yaw", type=float, default=0.0, help="turn the scene by this many degrees about z")
     parser.add_argument("--out", type=Path, required=True, help="file to write: .glb, .obj or .ply")
     args = parser.parse_args(argv)
 
@@ -75,7 +89,7 @@ def main(argv: list[str] | None = None) -> int | None:
     if not 0 <= args.index < len(scenes):
         parser.error(f"--index must be in [0, {len(scenes)}) for split {args.split}")
     scene = scenes[args.index]
-    mesh = scene_mesh(scene)
+    mesh = turned(scene_mesh(scene), args.yaw) if args.yaw else scene_mesh(scene)
     data = export_bytes(mesh, file_type)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")   # renamed whole: never half a file

@@ -39,6 +39,7 @@ from m2h_ros.errors import ConfigError
 PLAN_WORLD_VERSION = 1
 WALL_THICKNESS = 0.25  # m: an isolated occupied blob no thicker than this is a piece of wall, not furniture
 LATTICE_PHASES = (0.0, 0.25, 0.5, 0.75)  # offsets tried per axis, in units of the spacing
+DOOR_SLACK = 0.1  # m: a traced doorway may measure this much wider than the door
 DETOUR = 1.5  # a lattice edge may bend round a door jamb by at most this factor of its length
 _SPECK_AREA = 0.03  # m^2: occupied or unknown specks smaller than this are sensor noise in free space
 
@@ -340,6 +341,21 @@ def _signed_area(points: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
+def _opening_widths(ring: _Ring) -> np.ndarray:
+    """(K,) per edge, the straight distance across the run of edges of one kind it belongs to: for an
+    opening into another room, its width (the traced line between two rooms need not be straight)."""
+    n = len(ring.beyond)
+    starts = np.flatnonzero(ring.beyond != np.roll(ring.beyond, 1))
+    if len(starts) == 0:
+        return np.full(n, np.inf)
+    widths = np.empty(n)
+    for k, start in enumerate(starts):
+        stop = starts[(k + 1) % len(starts)]
+        count = (stop - start) % n or n
+        widths[(start + np.arange(count)) % n] = np.hypot(*(ring.points[stop % n] - ring.points[start]))
+    return widths
+
+
 def _room_surfaces(index: int, room: Room, rings: list[_Ring], settings: PlanSettings,
                    surface_material) -> tuple[list[Surface], list[Wall]]:
     """A room's acoustic polygons (walls and lintels facing it, its floors and ceilings) and its walls."""
@@ -351,11 +367,12 @@ def _room_surfaces(index: int, room: Room, rings: list[_Ring], settings: PlanSet
 
     surfaces, walls = [], []
     for ring in rings:
+        widths = _opening_widths(ring)
         for k in range(len(ring.points)):
             p0, p1 = ring.points[k], ring.points[(k + 1) % len(ring.points)]
             length = float(np.hypot(*(p1 - p0)))
             beyond = int(ring.beyond[k])
-            if length < 1e-6 or (beyond >= 0 and length > settings.door_width + 1e-9):
+            if length < 1e-6 or (beyond >= 0 and widths[k] > settings.door_width + DOOR_SLACK):
                 continue  # nothing there: a degenerate edge or an open-plan boundary
             z0 = 0.0 if beyond < 0 else door  # a doorway has its lintel above it, on this room's side
             left = np.array([-(p1 - p0)[1], (p1 - p0)[0]]) / length
