@@ -267,9 +267,7 @@ def mesh_floor_plan(mesh: TriangleMesh, *, resolution: float = 0.05, head_room: 
     iy, ix = np.divmod(np.arange(rows * cols), cols)
     xy = grid.cell_centres(ix, iy)
     columns = _survey_columns(caster, xy, top=float(high[2]) + 1.0)
-    tolerance = step_height
-    levels = _find_levels(columns, len(xy), resolution=resolution, tolerance=tolerance,
-                          head_room=head_room, step_height=step_height)
+    levels = _find_levels(columns, len(xy), resolution=resolution, head_room=head_room, step_height=step_height)
     if not levels:
         size = high - low
         raise ConfigError(f"no floor found in a mesh of {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g} m: no "
@@ -278,12 +276,12 @@ def mesh_floor_plan(mesh: TriangleMesh, *, resolution: float = 0.05, head_room: 
                           "a floor's triangles must face up)")
     level = _choose_level(levels, floor_level)
     floor_z = levels[level].z
-    floor = _cell_floors(columns, len(xy), floor_z, tolerance)
+    floor = _cell_floors(columns, len(xy), floor_z, step_height)
     has_floor = np.isfinite(floor)
     base = np.where(has_floor, floor, floor_z)
     # A column without floor at this level is occupied if anything lies at the level: a box wall's bottom
     # face hides the floor face it stands on (coplanar), but outside the building there is nothing.
-    lowest = np.where(has_floor, step_height, -tolerance)
+    lowest = np.where(has_floor, step_height, -step_height)
     blocked, ceiling = _column_obstacles(columns, base, lowest, head_room=head_room)
     cells = np.full(len(xy), UNKNOWN, np.int8)
     cells[has_floor] = FREE
@@ -292,13 +290,10 @@ def mesh_floor_plan(mesh: TriangleMesh, *, resolution: float = 0.05, head_room: 
     cells[_walls_near(caster, grid, xy, base, open_floor, step_height=step_height, head_room=head_room)] = OCCUPIED
     cells = cells.reshape(rows, cols)
     cells[_pockets(cells == FREE, max_cells=MIN_FREE_AREA / resolution**2)] = OCCUPIED
-    cells = cells.ravel()
-    free = cells == FREE
-    above = ceiling[free]
+    above = ceiling[(cells == FREE).ravel()]
     roofed = np.isfinite(above)
-    ceiling_z = float(np.median(above[roofed])) if roofed.sum() * 2 > max(free.sum(), 1) else None
-    plan = OccupancyGrid(cells.reshape(rows, cols), resolution, grid.origin)
-    return MeshPlan(plan, floor_z, ceiling_z, tuple(levels), level)
+    ceiling_z = float(np.median(above[roofed])) if roofed.sum() * 2 > max(above.size, 1) else None
+    return MeshPlan(OccupancyGrid(cells, resolution, grid.origin), floor_z, ceiling_z, tuple(levels), level)
 
 
 def _check_plan_options(resolution: float, head_room: float, step_height: float) -> None:
@@ -331,13 +326,13 @@ def _survey_columns(caster: RayCaster, xy: np.ndarray, *, top: float) -> _Column
     return _Columns(np.concatenate(col), np.concatenate(height), np.concatenate(up))
 
 
-def _find_levels(columns: _Columns, n_cells: int, *, resolution: float, tolerance: float,
-                 head_room: float, step_height: float) -> list[FloorLevel]:
+def _find_levels(columns: _Columns, n_cells: int, *, resolution: float, head_room: float,
+                 step_height: float) -> list[FloorLevel]:
     """Heights where upward-facing surfaces with head room above them cluster, lowest first.
 
     Greedy peaks of a histogram of floor heights (each column counted once per bin): the fullest
-    window of +-``tolerance`` is a level, and nothing within ``head_room`` of it can be another (a
-    table top is furniture on a floor, not a floor)."""
+    window of +-``step_height`` is a level if enough of it has head room, and nothing within ``head_room``
+    of it can be another (a table top is furniture on a floor, not a floor)."""
     floors = columns.up
     if not floors.any():
         return []
@@ -345,7 +340,7 @@ def _find_levels(columns: _Columns, n_cells: int, *, resolution: float, toleranc
     z0 = float(heights.min())
     bins = np.floor((heights - z0) / LEVEL_BIN).astype(np.int64)
     counts = np.bincount(np.unique(bins * n_cells + columns.col[floors]) // n_cells)
-    reach = int(math.ceil(tolerance / LEVEL_BIN))
+    reach = int(math.ceil(step_height / LEVEL_BIN))
     running = np.concatenate([[0], np.cumsum(counts)])
     index = np.arange(len(counts))
     window = (running[np.minimum(index + reach + 1, len(counts))] - running[np.maximum(index - reach, 0)]).astype(float)
@@ -356,13 +351,13 @@ def _find_levels(columns: _Columns, n_cells: int, *, resolution: float, toleranc
         peak = int(np.argmax(window))
         z = round(float(np.median(heights[np.abs(bins - peak) <= reach])), 4) + 0.0  # 0.1 mm, never -0.0
         window[peak] = 0
-        floor = _cell_floors(columns, n_cells, z, tolerance)
+        floor = _cell_floors(columns, n_cells, z, step_height)
         has_floor = np.isfinite(floor)
         blocked, ceiling = _column_obstacles(columns, np.where(has_floor, floor, z), np.full(n_cells, step_height),
                                              head_room=head_room)
         open_floor = has_floor & ~blocked
         if open_floor.sum() < min_cells:  # tops of things without head room over them: drop this peak only
-            window[np.abs(centres - z) <= 2 * tolerance] = 0
+            window[np.abs(centres - z) <= 2 * step_height] = 0
             continue
         window[np.abs(centres - z) < head_room] = 0
         area = resolution**2

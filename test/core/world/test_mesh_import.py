@@ -302,6 +302,59 @@ def test_the_flat_roof_is_a_level_but_the_floor_under_the_ceiling_is_planned(hou
     assert cell_value(on_roof, 4.5, 1.5) == FREE and cell_value(on_roof, 5.0, 6.0) == UNKNOWN
 
 
+def quad(corners, facing) -> trimesh.Trimesh:
+    """Two triangles over four corners (in order around the quad) whose normal points along ``facing``."""
+    corners = np.asarray(corners, float)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    if np.dot(np.cross(corners[1] - corners[0], corners[2] - corners[0]), facing) < 0:
+        faces = faces[:, ::-1]
+    return trimesh.Trimesh(corners, faces, process=False)
+
+
+def wall(x0, y0, x1, y1, z0, z1, facing) -> trimesh.Trimesh:
+    return quad([(x0, y0, z0), (x1, y1, z0), (x1, y1, z1), (x0, y0, z1)], facing)
+
+
+def scanned_house() -> trimesh.Trimesh:
+    """The house as a scan sees it: only the surfaces visible from inside the rooms, each facing the room
+    (no floor under the walls, no outside, nothing inside the walls), and the table as an open box."""
+    surfaces = []
+    for (x0, y0), (x1, y1) in ROOMS:
+        surfaces.append(quad([(x0, y0, 0), (x1, y0, 0), (x1, y1, 0), (x0, y1, 0)], (0, 0, 1)))
+        surfaces.append(quad([(x0, y0, 2.6), (x1, y0, 2.6), (x1, y1, 2.6), (x0, y1, 2.6)], (0, 0, -1)))
+        surfaces += [wall(x0, y0, x1, y0, 0, 2.6, (0, 1, 0)), wall(x0, y0, x0, y1, 0, 2.6, (1, 0, 0)),
+                     wall(x1, y0, x1, y1, 0, 2.6, (-1, 0, 0))]
+    (d0, d1), (a, b) = DOOR, (3.95, 4.05)
+    surfaces += [wall(0, a, d0, a, 0, 2.6, (0, -1, 0)), wall(d1, a, 6, a, 0, 2.6, (0, -1, 0)),  # A's north side
+                 wall(d0, a, d1, a, 2.0, 2.6, (0, -1, 0)),
+                 wall(0, b, d0, b, 0, 2.6, (0, 1, 0)), wall(d1, b, 3, b, 0, 2.6, (0, 1, 0)),  # B's south side
+                 wall(d0, b, d1, b, 2.0, 2.6, (0, 1, 0)),
+                 wall(0, 8, 3, 8, 0, 2.6, (0, -1, 0)),  # B's north wall
+                 quad([(d0, a, 0), (d1, a, 0), (d1, b, 0), (d0, b, 0)], (0, 0, 1)),  # the door: its floor,
+                 wall(d0, a, d0, b, 0, 2.0, (1, 0, 0)), wall(d1, a, d1, b, 0, 2.0, (-1, 0, 0)),  # jambs and head
+                 quad([(d0, a, 2.0), (d1, a, 2.0), (d1, b, 2.0), (d0, b, 2.0)], (0, 0, -1))]
+    (tx0, ty0, _), (tx1, ty1, top) = TABLE
+    surfaces += [quad([(tx0, ty0, top), (tx1, ty0, top), (tx1, ty1, top), (tx0, ty1, top)], (0, 0, 1)),
+                 wall(tx0, ty0, tx1, ty0, 0, top, (0, -1, 0)), wall(tx0, ty1, tx1, ty1, 0, top, (0, 1, 0)),
+                 wall(tx0, ty0, tx0, ty1, 0, top, (-1, 0, 0)), wall(tx1, ty0, tx1, ty1, 0, top, (1, 0, 0))]
+    return trimesh.util.concatenate(surfaces)
+
+
+def test_a_scans_open_surfaces_give_the_same_rooms(tmp_path):
+    scanned_house().export(tmp_path / "scan.ply")
+    plan = mesh_floor_plan(read_mesh(tmp_path / "scan.ply"), resolution=0.05)
+    assert [level.z for level in plan.levels] == [0.0] and plan.ceiling_z == pytest.approx(2.6, abs=1e-4)
+    free = cells_where(plan, FREE)
+    assert np.all(inside(free, *ROOMS[0]) | inside(free, *ROOMS[1]) | inside(free, (DOOR[0], 3.9), (DOOR[1], 4.1)))
+    assert not np.any(inside(free, *TABLE))
+    assert len(free) * 0.05**2 == pytest.approx(6 * 3.95 + 3 * 3.95 - 1.0, rel=0.04)
+    for x in np.arange(DOOR[0] + 0.08, DOOR[1] - 0.08, 0.05):
+        assert cell_value(plan, x, 4.0) == FREE
+    # Both faces of the inner wall occupy their cells; outside the scan is unknown.
+    assert cell_value(plan, 0.5, 3.97) == OCCUPIED and cell_value(plan, 0.5, 4.03) == OCCUPIED
+    assert cell_value(plan, 4.5, 1.5) == OCCUPIED and cell_value(plan, 5.0, 6.0) == UNKNOWN
+
+
 def test_two_storeys_give_two_levels_and_floor_level_picks_one(tmp_path):
     parts = house_parts() + [Part(f"Upper{p.name}", p.material, p.rgb, p.boxes)
                              for p in house_parts(z0=2.7, upper=True)]
