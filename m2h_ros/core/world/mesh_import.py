@@ -39,9 +39,6 @@ LAYER_SKIP = 1e-3       # metres: a down-cast goes on this far below the surface
 MAX_LAYERS = 128        # surfaces listed per column at most
 LEVEL_BIN = 0.02        # metres: histogram bin of floor heights
 MIN_LEVEL_AREA = 1.0    # m^2 of open floor that makes a level
-# m^2: free pockets smaller than this are occupied. No robot fits there, and they are where rays cannot
-# tell the inside of a wall from a room (where box walls meet, coplanar faces hide each other).
-MIN_FREE_AREA = 0.05
 MAX_CELLS = 16_000_000  # a plan larger than this asks for a coarser resolution
 RAY_SPACING = 0.35      # metres between the heights of the horizontal rays
 # Horizontal ray directions, every 45 degrees from +x (even entries: along the axes).
@@ -288,12 +285,11 @@ def mesh_floor_plan(mesh: TriangleMesh, *, resolution: float = 0.05, head_room: 
     cells[blocked] = OCCUPIED
     open_floor = np.flatnonzero(cells == FREE)
     cells[_walls_near(caster, grid, xy, base, open_floor, step_height=step_height, head_room=head_room)] = OCCUPIED
-    cells = cells.reshape(rows, cols)
-    cells[_pockets(cells == FREE, max_cells=MIN_FREE_AREA / resolution**2)] = OCCUPIED
-    above = ceiling[(cells == FREE).ravel()]
+    above = ceiling[cells == FREE]
     roofed = np.isfinite(above)
     ceiling_z = float(np.median(above[roofed])) if roofed.sum() * 2 > max(above.size, 1) else None
-    return MeshPlan(OccupancyGrid(cells, resolution, grid.origin), floor_z, ceiling_z, tuple(levels), level)
+    return MeshPlan(OccupancyGrid(cells.reshape(rows, cols), resolution, grid.origin), floor_z, ceiling_z,
+                    tuple(levels), level)
 
 
 def _check_plan_options(resolution: float, head_room: float, step_height: float) -> None:
@@ -397,15 +393,6 @@ def _column_obstacles(columns: _Columns, base: np.ndarray, lowest: np.ndarray, *
     over = rise >= head_room
     np.minimum.at(ceiling, columns.col[over], columns.z[over])
     return blocked, ceiling
-
-
-def _pockets(free: np.ndarray, *, max_cells: float) -> np.ndarray:
-    """Mask of the 4-connected free regions of fewer than ``max_cells`` cells."""
-    from scipy import ndimage
-
-    labels, _ = ndimage.label(free)
-    sizes = np.bincount(labels.ravel())
-    return free & (sizes[labels] < max_cells)
 
 
 def _walls_near(caster: RayCaster, grid: OccupancyGrid, xy: np.ndarray, base: np.ndarray, cells: np.ndarray,

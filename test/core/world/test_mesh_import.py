@@ -26,6 +26,9 @@ from m2h_ros.errors import ConfigError
 # at x 1.0..1.9 up to 2.0 m. The table stands in room A.
 DOOR = (1.0, 1.9)
 TABLE = ((4.0, 1.0, 0.0), (5.0, 2.0, 0.75))
+# A wardrobe on short legs in room B: the floor runs on under it and its top is above the head room, so
+# only the horizontal rays find it (from inside they meet its faces from behind).
+WARDROBE = ((0.2, 6.5, 0.05), (1.0, 7.8, 2.2))
 ROOMS = (((0.0, 0.0), (6.0, 3.95)), ((0.0, 4.05), (3.0, 8.0)))
 
 
@@ -59,7 +62,7 @@ def house_parts(*, z0: float = 0.0, upper: bool = False) -> list[Part]:
                   tuple(((x0, y0, 2.6), (x1, y1, 2.7)) for (x0, y0), (x1, y1) in slabs)),
              Part("Walls", "brick", (0.0, 0.0, 1.0), tuple(walls))]
     if not upper:
-        parts.append(Part("Table", "oak", (1.0, 0.0, 0.0), (TABLE,)))
+        parts += [Part("Table", "oak", (1.0, 0.0, 0.0), (TABLE,)), Part("Wardrobe", "oak", (1.0, 0.0, 0.0), (WARDROBE,))]
     return [Part(p.name, p.material, p.rgb, tuple(shift(b) for b in p.boxes)) for p in parts]
 
 
@@ -210,9 +213,9 @@ def test_bad_options_and_files_are_named_in_the_error(tmp_path, house_files):
 
 
 def test_parts_come_from_gltf_nodes_and_obj_groups_with_their_materials(house, house_files):
-    assert set(house.parts) == {"Floor/tile", "Ceiling/plaster", "Walls", "Table/oak"}
+    assert set(house.parts) == {"Floor/tile", "Ceiling/plaster", "Walls", "Table/oak", "Wardrobe/oak"}
     assert set(read_mesh(house_files / "house.obj").parts) == {"Floor/tile", "Ceiling/plaster", "Walls/brick",
-                                                             "Table/oak"}
+                                                             "Table/oak", "Wardrobe/oak"}
     assert read_mesh(house_files / "house.ply").parts == ("house.ply",)
     table = house.face_part == house.parts.index("Table/oak")
     assert table.sum() == 12 and house.bounds[1, 2] > house.vertices[np.unique(house.faces[table])][:, 2].max()
@@ -268,22 +271,24 @@ def test_the_floor_plan_frees_the_rooms_and_blocks_walls_and_the_table(house_fil
     in_rooms = inside(free, *ROOMS[0]) | inside(free, *ROOMS[1])
     in_door = inside(free, (DOOR[0], 3.9), (DOOR[1], 4.1))
     assert np.all(in_rooms | in_door)
-    assert not np.any(inside(free, *TABLE))
-    # Every cell well inside a room is free except around the table; the door is free.
+    assert not np.any(inside(free, *TABLE)) and not np.any(inside(free, *WARDROBE))
+    # Every cell well inside a room is free except around the furniture; the door is free.
     for lo, hi in ROOMS:
         xs, ys = np.meshgrid(np.arange(lo[0] + 0.08, hi[0] - 0.08, 0.05), np.arange(lo[1] + 0.08, hi[1] - 0.08, 0.05))
         points = np.column_stack([xs.ravel(), ys.ravel()])
-        points = points[~inside(points, np.subtract(TABLE[0], 0.08), np.add(TABLE[1], 0.08))]
+        for lo, hi in (TABLE, WARDROBE):
+            points = points[~inside(points, np.subtract(lo, 0.08), np.add(hi, 0.08))]
         ix, iy = plan.grid.cell_of(points)
         assert np.all(plan.grid.cells[iy, ix] == FREE)
     for x in np.arange(DOOR[0] + 0.08, DOOR[1] - 0.08, 0.05):
         assert cell_value(plan, x, 4.0) == FREE
-    expected = 6 * 3.95 + 3 * 3.95 - 1.0  # rooms minus the table, m^2
+    expected = 6 * 3.95 + 3 * 3.95 - 1.0 - 0.8 * 1.3  # rooms minus the table and the wardrobe, m^2
     assert len(free) * 0.05**2 == pytest.approx(expected, rel=0.04)
     # The walls are drawn whole: occupied cells line every wall, the inner one and the table.
     assert cell_value(plan, 3.0, -0.05) == OCCUPIED and cell_value(plan, 6.05, 2.0) == OCCUPIED
     assert cell_value(plan, 0.5, 4.0) == OCCUPIED and cell_value(plan, 2.5, 4.0) == OCCUPIED
     assert cell_value(plan, 4.5, 1.5) == OCCUPIED and cell_value(plan, 4.02, 1.02) == OCCUPIED
+    assert cell_value(plan, 0.6, 7.0) == OCCUPIED
     assert len(occupied) > 0.9 * (2 * (6.2 + 8.2) + 3.0) / 0.05
     # Beyond the L and the margin of the grid is unknown.
     assert cell_value(plan, 5.0, 6.0) == UNKNOWN and cell_value(plan, 6.13, 0.5) == UNKNOWN
@@ -409,11 +414,11 @@ def test_part_at_names_the_part_each_ray_hits(house):
 
 def test_the_material_map_gives_parts_acoustic_materials_by_pattern(tmp_path, house):
     path = tmp_path / "materials.yaml"
-    path.write_text('"Walls": brickwork\n"*/TILE": linoleum_on_concrete\n"Table*": wood_16mm\n"*": plasterboard\n')
+    path.write_text('"Walls": brickwork\n"*/TILE": linoleum_on_concrete\n"*/oak": wood_16mm\n"*": plasterboard\n')
     mapping = read_material_map(path)
     found = {part: material_for(part, mapping, "hard_surface") for part in house.parts}
     assert found == {"Walls": "brickwork", "Floor/tile": "linoleum_on_concrete", "Table/oak": "wood_16mm",
-                     "Ceiling/plaster": "plasterboard"}
+                     "Wardrobe/oak": "wood_16mm", "Ceiling/plaster": "plasterboard"}
     assert material_for(None, mapping, "hard_surface") == "hard_surface"
     assert material_for("Door", {"Wall*": "brickwork"}, "hard_surface") == "hard_surface"
 
