@@ -2,9 +2,9 @@
 
 Layout: ``data_dir()/rir_banks/v<VERSION>/<scene fingerprint>-<config digest>/src_<node>.npy``,
 one (N, row_length) array per source node (see ``acoustics.AcousticsConfig.row_length``), computed
-lazily on first use or all at once with ``build()``, written atomically (temporary file + rename)
-and memory-mapped on read. The bank's folder may also hold ``spectra_<n_fft>/``, the RIRs' spectra
-(``rir_spectra.StoredRirSpectra``).
+lazily on first use or all at once with ``build()`` (local processes or Ray tasks: ``bank_build``),
+written atomically (temporary file + rename) and memory-mapped on read. The bank's folder may also
+hold ``spectra_<n_fft>/``, the RIRs' spectra (``rir_spectra.StoredRirSpectra``).
 """
 
 from __future__ import annotations
@@ -13,14 +13,13 @@ import json
 import mmap
 import os
 import threading
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from m2h_ros.core.world.acoustics import N_HEADINGS, VERSION, AcousticsConfig, simulate_source
+from m2h_ros.core.world.bank_build import compute_sources
 from m2h_ros.errors import CacheError, ConfigError
 from m2h_ros.paths import data_dir
 
@@ -72,10 +71,6 @@ def populate(array: np.ndarray) -> None:
             pass
 
 
-def _simulate_and_store(scene: Any, node: int, config: AcousticsConfig, path: Path) -> Path:
-    return save_atomic(path, simulate_source(scene, node, config))
-
-
 class RirBank:
     """Binaural RIRs of one scene; ``rirs()`` gathers a batch, computing missing source nodes."""
 
@@ -107,28 +102,28 @@ class RirBank:
         """Source nodes with no file on disk yet."""
         return [n for n in range(self.n_nodes) if not self.path(n).exists()]
 
-    def build(self, *, progress: bool = True, workers: int = 1, populate_pages: bool = False) -> None:
-        """Compute every missing source node now (``workers`` processes), then open them all (and
-        with ``populate_pages`` map their pages into this process: :func:`populate`)."""
+    def store(self, node: int, rows: np.ndarray) -> Path:
+        """Write one source node's rows (``simulate_source``'s) to its file, atomically."""
+        expected = (self.n_nodes, self.config.row_length)
+        if rows.shape != expected or rows.dtype != np.dtype(self.config.storage_dtype):
+            raise CacheError(f"rows of source node {node} are {rows.dtype}{rows.shape}, the bank "
+                             f"{self.directory} holds {np.dtype(self.config.storage_dtype)}{expected}")
+        return save_atomic(self.path(node), rows)
+
+    def build(self, *, progress: bool = True, workers: int = 1, ray_address: str | None = None,
+              populate_pages: bool = False) -> int:
+        """Compute every missing source node now, ``workers`` local processes or Ray tasks
+        (``ray_address``: ``bank_build.compute_sources``), then open them all (and with
+        ``populate_pages`` map their pages into this process: :func:`populate`). Returns how many
+        source nodes were computed (files already present are kept)."""
         todo = self.missing()
-        bar = tqdm(total=len(todo), desc=f"RIR bank {self.scene.scene_id}", unit="src",
-                   disable=not (progress and self.progress and todo))
-        if workers > 1 and len(todo) > 1:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                futures = [pool.submit(_simulate_and_store, self.scene, n, self.config, self.path(n))
-                           for n in todo]
-                for future in futures:
-                    future.result()
-                    bar.update()
-        else:
-            for node in todo:
-                _simulate_and_store(self.scene, node, self.config, self.path(node))
-                bar.update()
-        bar.close()
+        compute_sources(self.scene, self.config, todo, self.store, workers=workers, ray_address=ray_address,
+                        progress=progress and self.progress, desc=f"RIR bank {self.scene.scene_id}")
         for node in range(self.n_nodes):
             rows = self._source(node)
             if populate_pages:
                 populate(rows)
+        return len(todo)
 
     def _source(self, node: int) -> np.ndarray:
         """The memory-mapped rows of one source node, computed first if absent."""
@@ -137,7 +132,7 @@ class RirBank:
             return rows
         path = self.path(node)
         if not path.exists():
-            _simulate_and_store(self.scene, node, self.config, path)
+            self.store(node, simulate_source(self.scene, node, self.config))
         rows = self._maps[node] = load_mapped(path, (self.n_nodes, self.config.row_length),
                                               self.config.storage_dtype, what="RIR bank")
         return rows
