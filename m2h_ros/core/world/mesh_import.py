@@ -148,31 +148,39 @@ def _part_name(scene, node: str, geometry, path: Path, suffix: str) -> str:
 
 
 def _face_colors(geometry, *, gltf: bool) -> np.ndarray:
-    """(F, 3) float32 display colours of a trimesh geometry's faces."""
-    from trimesh.visual.color import uv_to_color
+    """(F, 3) float32 display colours of a trimesh geometry's faces.
+
+    glTF: base colour factor x texture x COLOR_0, multiplied in linear light as its specification says.
+    OBJ and PLY: vertex colours, else the texture (map_Kd; exporters leave Kd at a default grey beside
+    it), else the diffuse colour Kd."""
+    from trimesh.visual.color import to_rgba, uv_to_color
 
     visual, faces = geometry.visual, np.asarray(geometry.faces)
-    grey = np.full((len(faces), 3), MID_GREY, np.float32)
-    if visual.kind == "vertex":
-        rgb = np.asarray(visual.vertex_colors, np.float64)[:, :3][faces].mean(axis=1) / 255
-        return (_linear_to_srgb(rgb) if gltf else rgb).astype(np.float32)  # glTF's COLOR_0 is linear
     if visual.kind == "face":
         return (np.asarray(visual.face_colors, np.float64)[:, :3] / 255).astype(np.float32)
-    material = getattr(visual, "material", None)
-    if visual.kind != "texture" or material is None:
-        return grey
-    factor = getattr(material, "baseColorFactor", None) if gltf else getattr(material, "diffuse", None)
+    # trimesh keeps a glTF primitive's COLOR_0 beside its material as a vertex attribute
+    painted = visual.vertex_colors if visual.kind == "vertex" else getattr(visual, "vertex_attributes", {}).get("color")
+    vertex = None
+    if painted is not None and len(painted) == len(geometry.vertices):
+        vertex = to_rgba(painted)[:, :3].astype(np.float64)[faces].mean(axis=1) / 255
+    material = getattr(visual, "material", None) if visual.kind == "texture" else None
+    factor = getattr(material, "baseColorFactor" if gltf else "diffuse", None)
     factor = None if factor is None else np.asarray(factor, np.float64)[:3] / 255
-    image = getattr(material, "baseColorTexture", None) if gltf else getattr(material, "image", None)
+    image = getattr(material, "baseColorTexture" if gltf else "image", None)
     uv = getattr(visual, "uv", None)
+    texel = None
     if image is not None and uv is not None and len(uv) == len(geometry.vertices):
         texel = uv_to_color(np.asarray(uv, np.float64)[faces].mean(axis=1), image)[:, :3] / 255
-        if gltf and factor is not None:  # glTF: a linear factor times the sRGB texture
-            texel = _linear_to_srgb(_srgb_to_linear(texel) * factor)
-        return texel.astype(np.float32)  # OBJ: map_Kd alone (exporters leave Kd at a default grey)
-    if factor is None:
-        return grey
-    return np.broadcast_to(_linear_to_srgb(factor) if gltf else factor, grey.shape).astype(np.float32)
+    if gltf:
+        terms = [term for term in (factor, None if texel is None else _srgb_to_linear(texel), vertex)
+                 if term is not None]
+        rgb = _linear_to_srgb(np.prod(np.broadcast_arrays(*terms, np.ones((len(faces), 3))), axis=0)) \
+            if terms else None
+    else:
+        rgb = next((term for term in (vertex, texel, factor) if term is not None), None)
+    if rgb is None:
+        return np.full((len(faces), 3), MID_GREY, np.float32)
+    return np.broadcast_to(rgb, (len(faces), 3)).astype(np.float32)
 
 
 def _linear_to_srgb(c: np.ndarray) -> np.ndarray:

@@ -8,6 +8,8 @@ lintel, and a table.
 
 from __future__ import annotations
 
+import base64
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -256,6 +258,42 @@ def test_gltf_colours_are_linear_and_come_out_as_display_srgb(tmp_path):
     assert right.sum() == 2 and left.sum() == 2
     np.testing.assert_allclose(mesh.face_colors[right], 0.402, atol=0.01)
     np.testing.assert_allclose(mesh.face_colors[left], np.tile([0.735, 0.0, 0.0], (2, 1)), atol=0.01)
+
+
+def test_a_gltf_mesh_of_several_primitives_is_one_part_per_material_and_vertex_paint_tints_its_material(tmp_path):
+    """A glTF node "Room" whose mesh has two primitives (as scans and Blender exports have: one per material),
+    one of them vertex-painted, and an unnamed node beside it."""
+    positions = np.array([[0, 0, 0], [4, 0, 0], [0, 0, -4], [0, 1, 0], [4, 1, 0], [0, 1, -4]], np.float32)
+    paint = np.array([[1.0, 0.0, 0.0, 1.0]] * 3 + [[0.0, 1.0, 0.0, 1.0]] * 3, np.float32)
+    first, second = np.array([0, 1, 2], np.uint16), np.array([3, 4, 5], np.uint16)
+    blob = positions.tobytes() + paint.tobytes() + first.tobytes() + second.tobytes()
+    views = [(0, 72), (72, 96), (168, 6), (174, 6)]
+    document = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
+        "nodes": [{"name": "Room", "mesh": 0}, {"mesh": 1, "translation": [5, 0, 0]}],
+        "meshes": [{"name": "RoomMesh", "primitives": [
+            {"attributes": {"POSITION": 0}, "indices": 2, "material": 0},
+            {"attributes": {"POSITION": 0, "COLOR_0": 1}, "indices": 3, "material": 1}]},
+            {"primitives": [{"attributes": {"POSITION": 0}, "indices": 2}]}],
+        "materials": [{"name": "Brick", "pbrMetallicRoughness": {"baseColorFactor": [0.2140, 0.2140, 0.2140, 1]}},
+                      {"name": "Paint", "pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1]}}],
+        "buffers": [{"byteLength": len(blob),
+                     "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": offset, "byteLength": length} for offset, length in views],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 6, "type": "VEC3",
+                       "min": [0, 0, -4], "max": [4, 1, 0]},
+                      {"bufferView": 1, "componentType": 5126, "count": 6, "type": "VEC4"},
+                      {"bufferView": 2, "componentType": 5123, "count": 3, "type": "SCALAR"},
+                      {"bufferView": 3, "componentType": 5123, "count": 3, "type": "SCALAR"}]}
+    (tmp_path / "room.gltf").write_text(json.dumps(document))
+    mesh = read_mesh(tmp_path / "room.gltf")
+    assert sorted(mesh.parts) == ["1", "Room/Brick", "Room/Paint"]
+    brick, paint_part = mesh.parts.index("Room/Brick"), mesh.parts.index("Room/Paint")
+    np.testing.assert_allclose(mesh.face_colors[mesh.face_part == brick], [[0.5, 0.5, 0.5]], atol=0.01)
+    # The painted triangle's corners are green: a 0.5 linear base colour times green paint, 0.735 displayed.
+    np.testing.assert_allclose(mesh.face_colors[mesh.face_part == paint_part], [[0.0, 0.735, 0.0]], atol=0.01)
+    np.testing.assert_allclose(mesh.face_colors[mesh.face_part == mesh.parts.index("1")], [[0.5, 0.5, 0.5]])
+    np.testing.assert_allclose(mesh.bounds, [[0, 0, 0], [9, 4, 1]], atol=1e-6)  # y-up: glTF -z is +y
 
 
 # ----------------------------------------------------------------------------- floor plan
