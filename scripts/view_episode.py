@@ -43,10 +43,13 @@ def main(argv=None) -> int:
     parser.add_argument("--policy", default="toward", choices=("toward", "random"))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT)
+    parser.add_argument("--world", default="", metavar="SPEC",
+                        help="an imported world's episodes instead of the test scenes': map:PATH/map.yaml or mesh:PATH")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     library = SoundLibrary.load()
-    episodes = episodes_for(EpisodeConfig(task=args.task, sound_split=args.sound_split), library)
+    episodes = episodes_for(EpisodeConfig(task=args.task, sound_split=args.sound_split,
+                                          scene_split=args.world or "test"), library)
     env = MoveHearEnv(episodes, library, config=EnvConfig(camera=True))
     separator = load_separator(args.checkpoint) if args.checkpoint.exists() else None
     rng = np.random.default_rng(args.seed)

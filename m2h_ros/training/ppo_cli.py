@@ -50,6 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--task", choices=TASKS, help="default: the kind's")
     parser.add_argument("--scene-split", default="train", choices=TRAINING_SCENE_SPLITS,
                         help="training scenes: train (12), train24 (24) or train48 (48); each holds the one before")
+    parser.add_argument("--world", default="", metavar="SPEC",
+                        help="train (fine-tune, with --init-policy) in an imported world instead: map:PATH/map.yaml "
+                             "(a nav2 map) or mesh:PATH (glb, gltf, obj, ply)")
     parser.add_argument("--separator", default="", help="separator checkpoint (default: the shipped one)")
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
@@ -94,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> PPOConfig:
     """The run :func:`main` makes of ``build_parser()``'s arguments."""
     task = args.task or KINDS[args.kind].task
-    episodes = EpisodeConfig(task=task, scene_split=args.scene_split, sound_split="heard", count=args.episodes, seed=args.seed,
+    episodes = EpisodeConfig(task=task, scene_split=args.world or args.scene_split, sound_split="heard", count=args.episodes, seed=args.seed,
                              max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
     return PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
                      env=KINDS[args.kind].env(camera=not args.no_camera, acoustics=AcousticsConfig(head=args.head)),

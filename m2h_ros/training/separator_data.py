@@ -61,7 +61,8 @@ from m2h_ros.core.world.episodes import (
 )
 from m2h_ros.core.world.navgrid import NavGrid, turn_left, turn_right
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.scene import Scene, load_split
+from m2h_ros.core.world.scene import Scene
+from m2h_ros.core.world.worlds import worlds_of
 from m2h_ros.config import check_int_fields
 from m2h_ros.errors import ConfigError
 
@@ -158,7 +159,7 @@ class StreamConfig:
 
 def stream_scenes(config: StreamConfig, template: EpisodeConfig) -> list[Scene]:
     """The scenes a stream draws from for one template: its split's, or the first ``config.scenes``."""
-    scenes = load_split(template.scene_split, preset=template.scene_preset)
+    scenes = worlds_of(template.scene_split, preset=template.scene_preset)
     if config.scenes is not None and config.scenes > len(scenes):
         raise ConfigError(f"StreamConfig.scenes={config.scenes}, but split {template.scene_split!r} has "
                           f"{len(scenes)} scenes")

@@ -37,7 +37,7 @@ from tqdm import tqdm  # noqa: E402
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world.env import BatchEnv, EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import EpisodeConfig, draw_episode  # noqa: E402
-from m2h_ros.core.world.scene import load_split  # noqa: E402
+from m2h_ros.core.world.worlds import worlds_of  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
 from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.models.locator import (DEFAULT_LOCATOR_CHECKPOINT, LocatorConfig, LocatorOutput,  # noqa: E402
@@ -98,7 +98,7 @@ class LocatorSet:
 def draw_set(config: LocatorTrainConfig, template: EpisodeConfig, library: SoundLibrary, *, count: int,
              seed: int, progress: bool = True, what: str = "locator data") -> LocatorSet:
     """``count`` labelled observations of ``template``'s scenes and sounds, rendered in batches of 16."""
-    scenes = load_split(template.scene_split, preset=template.scene_preset)
+    scenes = worlds_of(template.scene_split, preset=template.scene_preset)
     batch = 16
     env: BatchEnv | None = None
     inputs, offsets, at_target = [], [], []
