@@ -65,7 +65,7 @@ class PlanSettings:
     robot_radius: float = 0.2       # m: a node needs this clearance, an edge all along
     furniture_max_area: float = 1.5  # m^2: isolated occupied blobs up to this are furniture
     furniture_height: float = 0.75  # m
-    wall_tolerance: float = 0.05    # m: walls simplified to within this of the traced boundary
+    wall_tolerance: float = 0.1     # m: walls simplified to within this of the traced boundary (a SLAM map's ragged walls)
     min_room_area: float = 2.0      # m^2: smaller automatic rooms join a neighbour
     wall_material: str = "plasterboard"
     floor_material: str = "linoleum_on_concrete"
@@ -134,7 +134,17 @@ def build_plan_world(plan: OccupancyGrid, *, free: np.ndarray, occupied: np.ndar
         raise ConfigError(f"{what}: free/occupied masks must have the plan's shape {plan.cells.shape}")
     unknown = ~free & ~occupied
     speck = max(1, int(round(_SPECK_AREA / res ** 2)))
-    # Specks of occupied or unknown inside free space are noise; larger occupied islands are furniture.
+    # Specks of unknown (unseen cells in a SLAM map) are noise: free where they lie in free space, part of
+    # the wall where they touch one. Then specks of occupied inside free space are noise too, and larger
+    # occupied islands are furniture.
+    unknown_parts, n_unk = ndimage.label(unknown)
+    unknown_sizes = np.bincount(unknown_parts.ravel(), minlength=n_unk + 1)
+    unknown_noise = unknown_sizes < speck
+    unknown_noise[0] = False
+    specks = unknown_noise[unknown_parts]
+    occupied = occupied | (specks & ndimage.binary_dilation(occupied, np.ones((3, 3))))
+    free = free | (specks & ~occupied)
+    unknown = ~free & ~occupied
     occupied_parts, n_occ = ndimage.label(occupied, structure=np.ones((3, 3)))
     sizes = np.bincount(occupied_parts.ravel(), minlength=n_occ + 1)
     touches_unknown = np.zeros(n_occ + 1, bool)
@@ -146,11 +156,7 @@ def build_plan_world(plan: OccupancyGrid, *, free: np.ndarray, occupied: np.ndar
     half_width = ndimage.maximum(ndimage.distance_transform_edt(occupied), occupied_parts,
                                  index=np.arange(n_occ + 1)) * res
     furniture_ids = np.flatnonzero(island & ~noise & (2 * np.asarray(half_width) > WALL_THICKNESS))
-    unknown_parts, n_unk = ndimage.label(unknown)
-    unknown_sizes = np.bincount(unknown_parts.ravel(), minlength=n_unk + 1)
-    unknown_noise = unknown_sizes < speck
-    unknown_noise[0] = False
-    free = free | noise[occupied_parts] | unknown_noise[unknown_parts]
+    free = free | noise[occupied_parts]
     furniture = np.isin(occupied_parts, furniture_ids)
     floor = free | furniture
     if not free.any():
