@@ -44,7 +44,7 @@ class EpisodeMedia:
     camera: dict[int, np.ndarray] = field(default_factory=dict)  # (h, w, 3) uint8
     si_sdr: dict[int, float] = field(default_factory=dict)  # dB
     pose: dict[int, tuple[float, float, float]] = field(default_factory=dict)  # x, y, yaw in the map frame
-    grid: tuple[np.ndarray, tuple[float, float, float, float]] | None = None  # occupancy (0..100, -1), extent
+    grid: tuple[np.ndarray, tuple[float, float, float, float], float] | None = None  # occupancy, extent, yaw
     sources: list[tuple[float, float, str]] = field(default_factory=list)  # x, y, label (target first)
 
     @property
@@ -118,7 +118,8 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
             info = msg.info
             x0, y0 = info.origin.position.x, info.origin.position.y
             extent = (x0, x0 + info.width * info.resolution, y0, y0 + info.height * info.resolution)
-            media.grid = (np.asarray(msg.data, np.int8).reshape(info.height, info.width), extent)
+            yaw = 2 * np.arctan2(info.origin.orientation.z, info.origin.orientation.w)  # a map turned in its frame
+            media.grid = (np.asarray(msg.data, np.int8).reshape(info.height, info.width), extent, float(yaw))
         elif topic == SOURCES_TOPIC and stamp <= first:  # a ball per source (id 0: the target), a label each
             labels = {m.id: m.text for m in msg.markers if m.action == ADD and m.type == TEXT_VIEW_FACING}
             media.sources = [(m.pose.position.x, m.pose.position.y, labels.get(m.id, ""))
@@ -173,9 +174,17 @@ def render_frames(media: EpisodeMedia, *, width: int, height: int, only: int | N
 
 def _draw_map(ax, media: EpisodeMedia, path: np.ndarray, pose) -> None:
     if media.grid is not None:
-        occupancy, extent = media.grid
+        from matplotlib.transforms import Affine2D
+
+        occupancy, extent, yaw = media.grid
         shade = np.where(occupancy < 0, 0.85, 1.0 - np.clip(occupancy, 0, 100) / 100 * 0.8)
-        ax.imshow(shade, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+        image = ax.imshow(shade, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+        if yaw:
+            image.set_transform(Affine2D().rotate_around(extent[0], extent[2], yaw) + ax.transData)
+            corners = Affine2D().rotate_around(extent[0], extent[2], yaw).transform(
+                [[extent[0], extent[2]], [extent[1], extent[2]], [extent[0], extent[3]], [extent[1], extent[3]]])
+            ax.update_datalim(corners)
+            ax.autoscale_view()
     for index, (x, y, label) in enumerate(media.sources):
         ax.scatter(x, y, s=40, marker="*" if index == 0 else "o", color="#d62728" if index == 0 else "#333333",
                    zorder=5, label=label if label else ("target" if index == 0 else "distractor"))

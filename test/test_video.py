@@ -118,8 +118,8 @@ def test_both_audio_streams_carry_the_bags_audio(video):
 def test_the_map_and_the_sources_come_from_the_bag(video):
     run, _ = video
     media = read_episode(run / "bag", 1)
-    occupancy, extent = media.grid
-    assert np.array_equal(occupancy, GRID) and extent == (-1.0, 4.0, -0.5, 3.5)
+    occupancy, extent, yaw = media.grid
+    assert np.array_equal(occupancy, GRID) and extent == (-1.0, 4.0, -0.5, 3.5) and yaw == 0.0
     assert media.sources == [(x, y, label) for (x, y), label in SOURCES]
     assert sorted(media.pose) == list(range(STEPS))
 

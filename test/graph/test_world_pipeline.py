@@ -75,6 +75,10 @@ def test_three_episodes_run_recorded_and_scored_in_an_imported_world(world_fixtu
     np.testing.assert_allclose(xy, world.grid.positions[[m.node for m in poses]], atol=1e-6)
     scored = eval_bag(tmp_path / "bag", spec, tmp_path / "eval")
     assert scored.returncode == 0, scored.stdout + scored.stderr
+    # The run video draws the plan turned as the map is.
+    from m2h_ros.video import read_episode
+
+    assert read_episode(tmp_path / "bag", 0).grid[2] == pytest.approx(world.plan.yaw)
 
 
 def test_a_bag_scored_against_another_world_is_named(apartment, small_library, small_data_dir, tmp_path):
