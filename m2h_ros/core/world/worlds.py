@@ -85,8 +85,29 @@ def load_world(spec: str) -> Scene:
 def load_world_with_report(spec: str) -> tuple[Scene, PlanWorldReport]:
     kind, path = parse_world_spec(spec)
     world_file = _world_file_path(path)
-    stamp = tuple((p.stat().st_size, p.stat().st_mtime_ns) if p.exists() else None for p in (path, world_file))
-    return _load(kind, str(path), stamp)
+    stamp = _stamp((path, world_file))
+    return _load(kind, str(path), stamp + _stamp(_named_files(kind, path, world_file, stamp)))
+
+
+def _stamp(paths) -> tuple:
+    return tuple((p.stat().st_size, p.stat().st_mtime_ns) if p.exists() else None for p in paths)
+
+
+@functools.lru_cache(maxsize=8)
+def _named_files(kind: str, path: Path, world_file: Path, stamp) -> tuple[Path, ...]:
+    """The files that the input and its world file name (a map's image, a room label image, a material
+    map): a change to any of them builds the world again. Read once per ``stamp`` of the two."""
+    del stamp  # only part of the memo's key
+    named = []
+    if kind == "map":
+        try:
+            image = (yaml.safe_load(path.read_text()) or {}).get("image")
+        except (OSError, yaml.YAMLError, AttributeError):
+            image = None  # read_ros_map names what is wrong with the map file
+        if isinstance(image, str) and image:
+            named.append(_beside(path, image))
+    settings = read_world_file(world_file, kind=kind)
+    return (*named, *(_beside(world_file, name) for name in (settings.plan.room_labels, settings.materials) if name))
 
 
 def world_file_path(spec: str) -> Path:
@@ -242,6 +263,16 @@ def read_world_file(path: Path, *, kind: str) -> WorldFile:
         if polygon and (len(polygon) < 3 or any(len(c) != 2 for c in polygon)):
             raise ConfigError(f"world file {path}: room {number}'s polygon needs at least 3 [x, y] corners")
         specs.append(RoomSpec(**{**room, "polygon": polygon}))
+    # The acoustics look materials up only when they run: name a misspelt one now, with this file.
+    from m2h_ros.core.world.mesh_import import _is_acoustic_material, _with_suggestion
+
+    named = [value for key, value in plan.items() if key.endswith("_material")]
+    named += [value for spec in specs for value in (spec.wall_material, spec.floor_material, spec.ceiling_material)
+              if value]
+    unknown = sorted({str(name) for name in named if not _is_acoustic_material(name)})
+    if unknown:
+        raise ConfigError(f"world file {path}: unknown acoustic material(s) {'; '.join(map(_with_suggestion, unknown))}"
+                          f" (names are pyroomacoustics database entries, e.g. plasterboard, brickwork, carpet_thin)")
     try:
         plan_settings = PlanSettings(**plan, rooms=tuple(specs))
         mesh = {k: v for k, v in document.items() if k in _MESH_KEYS}
