@@ -188,6 +188,17 @@ def test_wall_faces_point_away_from_their_room(apartment):
         assert scene.room_at(middle + 0.2 * normal) != face.room, face
 
 
+def test_a_ragged_slam_map_gives_the_same_rooms_furniture_and_doors(maps, apartment):
+    _, clean, _ = apartment
+    scene, report = load_world_with_report(map_spec(maps / "slam", apartment_grid(noise=0.3, seed=1)))
+    assert len(scene.rooms) == 6 and report.n_furniture == len(APARTMENT_FURNITURE)
+    assert len(scene.doors) == len(APARTMENT_DOORS) and report.dropped_components == ()
+    for name in APARTMENT_ROOMS:  # walls only grow into the rooms, by a cell or two
+        area, plain = scene.rooms[room_index(scene, name)].area, clean.rooms[room_index(clean, name)].area
+        assert 0.97 * plain < area < plain, name
+    assert set(scene.grid.room_of.tolist()) == set(range(6))
+
+
 # --- the apartment turned in the map frame -------------------------------------------------------------
 
 def test_a_turned_map_gives_the_same_rooms_and_furniture(apartment, rotated):
