@@ -67,6 +67,7 @@ class PlanSettings:
     furniture_height: float = 0.75  # m
     wall_tolerance: float = 0.1     # m: walls simplified to within this of the traced boundary (a SLAM map's ragged walls)
     min_room_area: float = 2.0      # m^2: smaller automatic rooms join a neighbour
+    lattice_yaw: float | None = None  # degrees: the lattice's turn in the input's frame; None: along the walls
     wall_material: str = "plasterboard"
     floor_material: str = "linoleum_on_concrete"
     ceiling_material: str = "ceiling_plasterboard"
@@ -101,11 +102,14 @@ class PlanWorldReport:
     n_furniture: int
     n_walls: int
     rooms: tuple[tuple[str, float], ...] = field(default=())  # (name, m^2)
+    turn_deg: float = 0.0  # the world's frame turned from the input's by this (the lattice along the walls)
 
     def describe(self) -> str:
         rooms = ", ".join(f"{name} {area:.1f} m^2" for name, area in self.rooms)
         text = (f"{len(self.rooms)} rooms ({rooms}); {self.n_walls} wall faces; {self.n_furniture} furniture "
                 f"blobs; lattice {self.n_nodes} nodes")
+        if self.turn_deg:
+            text += f" along the walls (the world's frame is the input's turned {-self.turn_deg:.1f} deg)"
         if self.dropped_components:
             text += (f"; left out {len(self.dropped_components)} unconnected lattice part(s) of "
                      f"{', '.join(map(str, self.dropped_components))} node(s)")
@@ -127,11 +131,18 @@ def build_plan_world(plan: OccupancyGrid, *, free: np.ndarray, occupied: np.ndar
     (neither: unknown). ``what`` names the input in errors. ``user_labels``: (rows, cols) int room
     labels (0: none) instead of the automatic rooms. ``mesh``: what the camera sees (default: the
     built surfaces). ``surface_material(room, kind, centre, outward) -> str | None``: a material for a
-    surface from elsewhere (a mesh's parts), None for the room's own."""
+    surface from elsewhere (a mesh's parts), None for the room's own.
+
+    The world's frame is the input's turned so that the lattice runs along the building's walls
+    (``lattice_yaw``; a plan whose walls lie along its axes is not turned): the moves of the lattice
+    then follow corridors and pass doors however the map or mesh lies in its own frame."""
     res = float(plan.resolution)
     free, occupied = np.asarray(free, bool), np.asarray(occupied, bool)
     if free.shape != plan.cells.shape or occupied.shape != plan.cells.shape:
         raise ConfigError(f"{what}: free/occupied masks must have the plan's shape {plan.cells.shape}")
+    turn = np.radians(settings.lattice_yaw) if settings.lattice_yaw is not None else wall_direction(plan, free)
+    if turn:
+        plan, mesh, surface_material = _turned(plan, mesh, surface_material, -turn)
     unknown = ~free & ~occupied
     speck = max(1, int(round(_SPECK_AREA / res ** 2)))
     # Specks of unknown (unseen cells in a SLAM map) are noise: free where they lie in free space, part of
@@ -191,15 +202,62 @@ def build_plan_world(plan: OccupancyGrid, *, free: np.ndarray, occupied: np.ndar
         mesh = _surfaces_mesh(rooms, surfaces, prisms, settings)
     room_labels = labels - 1
     room_labels.setflags(write=False)
+    # The key of every cache built on the world: the inputs and settings, and the geometry itself, so a
+    # change of this builder can never pair a world with another's banks or episodes.
+    geometry = json.dumps({"inputs": fingerprint, "nodes": np.round(grid.positions, 6).tolist(),
+                           "moves": grid.forward.tolist(), "height": settings.wall_height,
+                           "surfaces": [[s.room, s.corners, s.material] for s in surfaces],
+                           "rooms": [[r.furnishing, round(r.area, 6)] for r in rooms],
+                           "obstacles": [[o.xmin, o.ymin, o.xmax, o.ymax, o.height, o.material] for o in obstacles]},
+                          separators=(",", ":"))
     scene = Scene(scene_id=scene_id, seed=0, height=float(settings.wall_height), rooms=tuple(rooms),
                   walls=tuple(walls), obstacles=tuple(obstacles), grid=grid, preset=source,
                   door_height=float(settings.door_height), size=(plan.cells.shape[1], plan.cells.shape[0]),
                   source=source, plan=plan, room_labels=room_labels, surfaces=tuple(surfaces), mesh=mesh,
-                  import_fingerprint=fingerprint)
+                  import_fingerprint=hashlib.sha256(geometry.encode()).hexdigest()[:16])
     report = PlanWorldReport(n_nodes=grid.n_nodes, dropped_components=dropped, n_furniture=len(obstacles),
                              n_walls=sum(1 for s in surfaces if s.outward[2] == 0),
-                             rooms=tuple((r.name, r.area) for r in rooms))
+                             rooms=tuple((r.name, r.area) for r in rooms), turn_deg=float(np.degrees(turn)))
     return scene, report
+
+
+def wall_direction(plan: OccupancyGrid, free: np.ndarray) -> float:
+    """The direction (radians in the input's frame, in [-45, 45) degrees) the building's walls run in,
+    up to quarter turns: the mean over the free space's outline, traced and straightened, each piece
+    weighted by its length squared (long walls decide); 0 within a degree of the input's axes."""
+    from shapely.geometry import LineString
+    from skimage.measure import find_contours
+
+    angles, lengths = [], []
+    for contour in find_contours(np.pad(free, 1).astype(np.float32), 0.5):
+        if len(contour) < 8:
+            continue
+        line = np.asarray(LineString(contour[:, ::-1]).simplify(1.5).coords)
+        step = np.diff(line, axis=0)
+        angles.append(np.arctan2(step[:, 1], step[:, 0]))
+        lengths.append(np.hypot(step[:, 0], step[:, 1]))
+    if not angles:
+        return 0.0
+    quarter = np.angle(np.sum(np.concatenate(lengths) ** 2 * np.exp(4j * np.concatenate(angles)))) / 4
+    turn = float((quarter + plan.yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
+    return 0.0 if abs(np.degrees(turn)) < 1.0 else turn
+
+
+def _turned(plan: OccupancyGrid, mesh: TriangleMesh | None, surface_material, angle: float):
+    """The plan and the mesh in a frame turned by ``angle`` (radians), and the material lookup taking that
+    frame's points and directions (it works in the input's)."""
+    c, s = np.cos(angle), np.sin(angle)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    origin = turn[:2, :2] @ np.asarray(plan.origin, float)
+    plan = OccupancyGrid(plan.cells, plan.resolution, (float(origin[0]), float(origin[1])), plan.yaw + angle)
+    if mesh is not None:
+        mesh = TriangleMesh(mesh.vertices @ turn.T, mesh.faces, mesh.face_colors, mesh.face_part, mesh.parts)
+    if surface_material is not None:
+        lookup = surface_material
+
+        def surface_material(room, kind, centre, outward):
+            return lookup(room, kind, turn.T @ np.asarray(centre, float), tuple(turn.T @ np.asarray(outward, float)))
+    return plan, mesh, surface_material
 
 
 # ----------------------------------------------------------------------------- rooms
@@ -436,7 +494,7 @@ def _lattice(free: np.ndarray, labels: np.ndarray, plan: OccupancyGrid, settings
 
     A wall or a door jamb on a lattice line can cut a building in two that a lattice shifted by a
     fraction of its spacing connects, so the lattice is laid at LATTICE_PHASES offsets (in x and y)
-    and the one whose largest part has the most nodes (then edges; then the smallest offset) is kept.
+    and the one that connects the building best is kept (``_connectivity``; then the smallest offset).
     """
     res = plan.resolution
     # Clearance of a cell centre: distance to the nearest blocked cell's edge.
@@ -450,7 +508,7 @@ def _lattice(free: np.ndarray, labels: np.ndarray, plan: OccupancyGrid, settings
     if not candidates:
         raise ConfigError(f"{what}: no place has {settings.robot_radius} m of clearance for the robot on a "
                           f"{settings.lattice_spacing} m lattice; lower robot_radius or lattice_spacing")
-    cells, origin, edges, part, sizes = max(candidates, key=lambda g: (g[4].max(), len(g[2])))[:5]
+    cells, origin, edges, part, sizes = max(candidates, key=lambda g: _connectivity(g, labels, plan, settings))
     keep = int(np.argmax(sizes))
     dropped = tuple(sorted((int(s) for k, s in enumerate(sizes) if k != keep), reverse=True))
     kept = np.flatnonzero(part == keep)
@@ -467,6 +525,18 @@ def _lattice(free: np.ndarray, labels: np.ndarray, plan: OccupancyGrid, settings
     ix, iy = plan.cell_of(np.asarray(origin) + (kept_cells + 0.5) * spacing)
     grid = NavGrid(kept_cells, labels[iy, ix] - 1, can_cross, spacing=spacing, origin=origin)
     return grid, dropped
+
+
+def _connectivity(graph, labels: np.ndarray, plan: OccupancyGrid, settings: PlanSettings) -> tuple:
+    """How well a lattice serves the building, best first: rooms its largest part reaches, pairs of
+    rooms it passes between (doors used), then its nodes and edges."""
+    cells, origin, edges, part, sizes = graph
+    keep = int(np.argmax(sizes))
+    ix, iy = plan.cell_of(np.asarray(origin) + (cells + 0.5) * settings.lattice_spacing)
+    room = labels[iy, ix]
+    inside = part == keep
+    doors = {(min(room[a], room[b]), max(room[a], room[b])) for a, b in edges if inside[a] and room[a] != room[b]}
+    return len(set(room[inside].tolist())), len(doors), int(sizes[keep]), len(edges)
 
 
 def _lattice_graph(clearance: np.ndarray, plan: OccupancyGrid, settings: PlanSettings, phase):
