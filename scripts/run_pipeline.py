@@ -20,7 +20,6 @@ itself be killed (SIGKILL, an out-of-memory kill), every node gets SIGTERM and s
 from __future__ import annotations
 
 import argparse
-import ctypes
 import dataclasses
 import os
 import random
@@ -36,6 +35,7 @@ import yaml
 
 from m2h_ros.errors import M2HError
 from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_REMAPS
+from m2h_ros.ros import stop_signals
 
 ROOT = Path(__file__).resolve().parents[1]
 # Start order: the live view and the recorder first, so they hear every topic from its first message.
@@ -45,7 +45,6 @@ STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "base_node"
               "audio_common_adapter", "recorder_node", "live_view_node")
 LIVE_VIEW_PORT = 8765  # Foxglove's default
 STOP_TIMEOUT_S = 20.0
-PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -167,34 +166,17 @@ def stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
-def stop_with(parent: int):
-    """What each node's process runs before its exec: SIGTERM to it when run_pipeline dies, however it
-    dies. The nodes run in sessions of their own (so a Ctrl-C reaches them in stop order, not all at
-    once), so nothing else would stop them when this script is killed outright."""
-
-    prctl = ctypes.CDLL(None).prctl  # looked up here: the child of a fork should only call it
-
-    def set_parent_death_signal() -> None:
-        prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-        if os.getppid() != parent:  # died before the line above took effect
-            os.kill(os.getpid(), signal.SIGTERM)
-
-    return set_parent_death_signal
-
-
 def last_error(log: Path) -> str:
     lines = [line for line in log.read_text(errors="replace").splitlines() if "FATAL" in line or "ERROR" in line
              or "Error" in line]
     return lines[-1].strip() if lines else ""
 
 
-def interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt  # SIGTERM (kill, timeout, a batch system) stops the nodes as Ctrl-C does
-
-
 def main(argv=None) -> int:
     args = parse_args(argv)
-    signal.signal(signal.SIGTERM, interrupt)
+    # SIGTERM (kill, timeout, a batch system) stops the nodes as Ctrl-C does; a second Ctrl-C (or a held
+    # one) cannot interrupt stopping them.
+    stop_signals.install()
     args.out = (args.out or ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")).resolve()
     if (args.out / "bag").exists():
         raise SystemExit(f"run_pipeline: {args.out / 'bag'} exists; choose another --out")
@@ -234,8 +216,9 @@ def main(argv=None) -> int:
             for topic, to in ROBOT_REMAPS.get(node, ()) if args.robot else ():
                 command += ["-r", f"{topic}:={to}"]
             procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,
+                                           # Sessions of their own: a Ctrl-C reaches them in stop order
                                            env=env, start_new_session=True, cwd=ROOT,
-                                           preexec_fn=stop_with(os.getpid()))
+                                           preexec_fn=stop_signals.stop_with(os.getpid()))
         while procs[finisher].poll() is None:
             early = [n for n, p in procs.items() if n != finisher and p.poll() is not None]
             if early:  # the run cannot go on: stop now rather than wait out the sim's step timeout
@@ -249,6 +232,7 @@ def main(argv=None) -> int:
         if finisher in procs:
             stop(procs[finisher])
     finally:
+        stop_signals.closing()
         unlisted = [n for n in procs if n not in STOP_ORDER and n != finisher]  # before the recorder
         for node in unlisted + [n for n in STOP_ORDER if n in procs]:
             stop(procs[node])
@@ -277,4 +261,9 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        exit_code = main()
+    except KeyboardInterrupt:  # while the data were prepared: no node was started yet
+        exit_code = 130
+    stop_signals.ignore()
+    sys.exit(exit_code)
