@@ -9,7 +9,8 @@ recorder writes the run to a fresh runs/<date-time>/bag. The shipped Move2Hear p
 camera: camera:=true (default) passes the robot's RGB-D images (camera/rgb/image_raw and
 camera/depth/image_raw, 32FC1 metres, at the policy's 128 x 128); camera:=false runs only controllers
 that read no images (the training-free baselines) and refuses the others at start. The launch ends
-when the episode's last step is out (exit 0) or when any node exits (exit 1, naming it).
+when the episode's last step is out (exit 0) or when any node fails (exit 1, naming it). Every argument is checked before any node starts (a bad value ends the launch naming the argument
+and the values it accepts), and every node stops should the launch process die.
 """
 
 
@@ -20,7 +21,8 @@ from launch.substitutions import EqualsSubstitution, LaunchConfiguration
 from launch_ros.actions import Node
 
 from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_REMAPS
-from m2h_ros.ros.launching import Argument, dds_profile, declare, exit_handler, node_settings, run_directory
+from m2h_ros.ros.launching import (Argument, check_arguments, dds_profile, declare, exit_handler, node_settings,
+                                   run_directory, stop_with_launch)
 
 NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
 ARGUMENTS = (
@@ -56,5 +58,7 @@ def generate_launch_description():
                         condition=source.get(name))
              for name in NODES}
     handlers = [exit_handler(action, name, finishes_run=name == "episode_driver") for name, action in nodes.items()]
-    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, *dds_profile(share), *nodes.values(),
+    # Every argument checked before any node starts; each node stops should the launch process die.
+    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, check_arguments(ARGUMENTS, configs),
+                              stop_with_launch(), *dds_profile(share), *nodes.values(),
                               *handlers])

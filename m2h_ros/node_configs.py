@@ -1,6 +1,7 @@
 """The configuration of each node, one frozen dataclass each; ``params/<node>.yaml`` holds the defaults."""
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES
 from m2h_ros import topics
@@ -16,6 +17,13 @@ SCENE_SPLITS = ("train", "val", "test")
 SIM_MODES = ("lockstep", "free_running")
 TARGET_CLASSES = ("", "speech", "music")
 PIPELINE_NODES = ("separator_node", "controller_node", "evaluator_node", "recorder_node")
+
+
+def check_file(config: Config, name: str, path: str | Path | None, what: str) -> None:
+    """ConfigError unless the file field ``name`` names (empty: none) exists: a missing one is named when
+    the settings are read, before any node starts, not once every node is up and this one loads it."""
+    if path and not Path(path).expanduser().is_file():
+        raise ConfigError(f"{type(config).__name__}.{name} = {str(path)!r}: no such file ({what})")
 
 
 @dataclass(frozen=True)
@@ -60,7 +68,7 @@ class SimConfig(Config):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        parse_head(self.head)
+        check_file(self, "head", parse_head(self.head).path, "a SOFA HRIR file")
         unknown = sorted(set(self.expect_nodes) - set(PIPELINE_NODES))
         if unknown:
             raise ConfigError(f"SimConfig.expect_nodes = {list(self.expect_nodes)}: unknown node(s) "
@@ -83,6 +91,10 @@ class SeparatorNodeConfig(Config):
                           "in-process evaluations run on the CPU: cpu gives their numbers bit for bit, a GPU "
                           "the same to float tolerance", choices=DEVICES)
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_file(self, "checkpoint", self.checkpoint, "a separator checkpoint")
+
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
@@ -94,6 +106,10 @@ class ControllerConfig(Config):
     seed: int = setting(0, "seed of stochastic controllers (with each episode's own seed)", min=0)
     camera: bool = setting(True, "camera images come with each step (the simulator's, or a robot's RGB-D); "
                            "false: a controller that reads them is refused at start")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_file(self, "checkpoint", self.checkpoint, "a policy or sound-locator checkpoint")
 
 
 @dataclass(frozen=True)
