@@ -9,8 +9,9 @@ recorder writes the run to a fresh runs/<date-time>/bag. The shipped Move2Hear p
 camera: camera:=true (default) passes the robot's RGB-D images (camera/rgb/image_raw and
 camera/depth/image_raw, 32FC1 metres, at the policy's 128 x 128); camera:=false runs only controllers
 that read no images (the training-free baselines) and refuses the others at start. The launch ends
-when the episode's last step is out (exit 0) or when any node fails (exit 1, naming it). Every argument is checked before any node starts (a bad value ends the launch naming the argument
-and the values it accepts), and every node stops should the launch process die.
+when the episode's last step is out (exit 0) or when any node fails (exit 1, naming it). Every
+argument is checked before any node starts (a bad value ends the launch naming the argument and the
+values it accepts), and every node stops should the launch process die.
 """
 
 
