@@ -31,6 +31,7 @@ ARGUMENTS = (
     Argument("steps", "episode_driver", "steps"),
     Argument("task", "episode_driver", "task"),
     Argument("camera", "episode_driver", "camera"),
+    Argument("input_timeout_s", "episode_driver", "input_timeout_s"),
     Argument("controller", "controller_node", "policy"),
     Argument("controller_checkpoint", "controller_node", "checkpoint"),
     Argument("separator_checkpoint", "separator_node", "checkpoint"),

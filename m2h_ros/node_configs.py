@@ -182,6 +182,9 @@ class EpisodeDriverConfig(Config):
                               min=0.0, max=60.0)
     step_timeout_s: float = setting(120.0, "seconds to wait for a step's motion_result before the node "
                                     "stops, naming what did not answer", min=0.1, max=3600.0)
+    input_timeout_s: float = setting(30.0, "seconds a step may wait for the robot's inputs (a microphone frame, "
+                                     "odometry, camera images) before the node stops, naming what is missing",
+                                     min=0.1, max=3600.0)
 
 
 @dataclass(frozen=True)

@@ -211,8 +211,8 @@ def main(argv=None) -> int:
                 continue
             logs[node] = args.out / "logs" / f"{node}.log"
             command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
-            for name, value in params[node].items():
-                command += ["-p", f"{name}:={ros_value(value)}"]
+            for name in params[node]:  # typed as the config holds them: 5 for a float is 5.0, which ROS needs
+                command += ["-p", f"{name}:={ros_value(getattr(configs[node], name))}"]
             for topic, to in ROBOT_REMAPS.get(node, ()) if args.robot else ():
                 command += ["-r", f"{topic}:={to}"]
             procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,

@@ -7,6 +7,7 @@ images is refused naming why."""
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -91,3 +92,16 @@ def test_without_a_camera_a_controller_that_reads_images_is_refused(tmp_path):
     assert result.returncode == 1
     assert "controller_node exited during the run" in result.stdout
     assert "controller 'move2hear' reads camera images and camera is false" in result.stdout
+
+
+def test_without_odometry_or_camera_the_run_ends_within_its_timeout_naming_them(tmp_path):
+    """No base driver and no camera: the episode driver stops after input_timeout_s, naming each input
+    that never came, instead of waiting for them for ever."""
+    started = time.monotonic()
+    result = mic_run(tmp_path, "--set", "episode_driver.input_timeout_s=5", timeout=180)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert f"[run]   {'episode_driver':16s} exit 2" in result.stdout, result.stdout
+    assert ("step 0: no odometry on /odom; no camera images on /camera/rgb/image_raw, /camera/depth/image_raw "
+            "within 5 s (input_timeout_s)") in result.stdout
+    assert "microphone frames" not in result.stdout  # the microphone worked
+    assert time.monotonic() - started < 120
