@@ -48,7 +48,7 @@ def generate_launch_description():
     share, params, configs, overrides = node_settings(NODES, ARGUMENTS)
     output = LaunchConfiguration("output")  # the run directory, not the bag itself
     overrides["recorder_node"]["output"] = [output, "/bag"]  # a list of text and substitutions: one string
-    overrides["evaluator_node"] = {"output_dir": [output, "/scores"]}
+    overrides["evaluator_node"] = {"output_dir": [output, "/scores"], "episodes": overrides["sim_node"]["num_episodes"]}
     overrides["sim_node"]["expect_nodes"] = [name for name in NODES if name != "sim_node" and name not in OPTIONAL]
     optional = [DeclareLaunchArgument("live_view", default_value="false", choices=["true", "false"],
                                       description="also serve the run to Foxglove (live_view_node)")]

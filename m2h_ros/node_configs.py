@@ -116,6 +116,8 @@ class ControllerConfig(Config):
 class EvaluatorConfig(Config):
     output_dir: str = setting("", "directory for results.md/.csv/.json and the SI-SDR plot, "
                               "rewritten after the first episode, every 10 s and at the end; empty: none")
+    episodes: int = setting(0, "episodes the run is to score (run_pipeline.py and the launch file set it): "
+                            "tables of fewer at shutdown say the run is partial; 0: not known", min=0)
 @dataclass(frozen=True)
 class RecorderConfig(Config):
     output: str = setting("", "bag directory to create; empty: runs/<date-time> under the current "

@@ -119,6 +119,8 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
             raise SystemExit(f"run_pipeline: --set {item!r} must be NODE.PARAM=VALUE with NODE one of "
                              f"{', '.join(params)}")
         params[node][name] = yaml.safe_load(value)
+    if not args.robot:  # what the evaluator's tables count against: fewer scored means a partial run
+        params["evaluator_node"].setdefault("episodes", params["sim_node"]["num_episodes"])
     return params
 
 

@@ -31,6 +31,11 @@ class RecorderNode(Node):
         super().__init__("recorder_node")
         self.config: RecorderConfig = declare_config(self, RecorderConfig)
         output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
+        if Path(output).exists() and not self.config.overwrite:
+            # In what each startup takes: BagWriter's own message names its Python argument.
+            raise BagError(f"bag {output} already exists: choose another output, or replace it with overwrite:=true "
+                           "(ros2 launch), -p overwrite:=true (ros2 run) or --set recorder_node.overwrite=true "
+                           "(run_pipeline.py)")
         self.writer = BagWriter(Path(output), flush_period_s=self.config.flush_period_s,
                                 overwrite=self.config.overwrite)
         self.recorded: dict[str, str] = {}  # topic -> type name

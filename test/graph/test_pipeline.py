@@ -42,6 +42,7 @@ def test_run_reports_where_everything_is(tiny_run):
     assert f"| {CONTROLLER} | near_target | unheard | 2 |" in result.stdout
     for name in ("results.md", "results.csv", "results.json", "si_sdr_vs_step.png"):
         assert (out / "scores" / name).stat().st_size > 0
+    assert (out / "scores" / "results.md").read_text().startswith("# m2h_ros pipeline run\n")  # whole: not partial
     # The evaluator prints the table itself (under ros2 launch its output is what a user sees)
     assert f"| {CONTROLLER} | near_target | unheard | 2 |" in (out / "logs" / "evaluator_node.log").read_text()
 

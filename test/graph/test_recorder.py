@@ -162,3 +162,12 @@ def test_a_definition_that_differs_from_the_publishers_is_named(processes, tmp_p
     assert "/audio/audio_stamped: the definition" not in log and "/audio/audio: the definition" not in log
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert "/audio/audio_info" in {t["topic_metadata"]["name"] for t in info["topics_with_message_count"]}
+
+
+def test_an_existing_bag_is_named_with_what_each_startup_takes(processes, tmp_path):
+    (tmp_path / "bag").mkdir()
+    recorder = processes.start([ROS2RUN, "m2h_ros", "recorder_node", "--ros-args", "-p", f"output:={tmp_path / 'bag'}"])
+    _, err = recorder.communicate(timeout=60)
+    assert recorder.returncode == 2
+    assert "already exists: choose another output, or replace it with overwrite:=true (ros2 launch)" in err
+    assert "-p overwrite:=true (ros2 run)" in err and "--set recorder_node.overwrite=true" in err

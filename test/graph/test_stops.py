@@ -10,6 +10,7 @@ starts them (a stand-in where ros2 launch is not installed)."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -106,6 +107,10 @@ def test_ctrl_c_held_under_run_pipeline_leaves_a_closed_bag_and_every_node_exit_
     assert not [name for name, text in logs.items() if "Traceback" in text], logs
     assert "Traceback" not in err, err
     check_closed(tmp_path)
+    # The tables say the run is partial, in the file and in what run_pipeline prints.
+    title = (tmp_path / "scores" / "results.md").read_text().splitlines()[0]
+    assert re.fullmatch(r"# m2h_ros pipeline run \(partial: \d+ of 40 episodes scored, the run ended early\)", title)
+    assert title in out
 
 
 def test_ctrl_c_held_in_one_process_group_as_ros2_launch_starts_them(small_library, small_data_dir, tmp_path):
