@@ -41,6 +41,11 @@ ARGUMENTS = (
                          "runs/<date-time> per launch)"),
     Argument("overwrite", "recorder_node", "overwrite",
              description="replace a bag already in the run directory (else the recorder stops, naming it)"),
+    # What the bag keeps: YAML lists of topic names or patterns ([/camera/*,/tf]), rate limits TOPIC=HZ.
+    Argument("record_topics", "recorder_node", "topics"),
+    Argument("record_exclude", "recorder_node", "exclude"),
+    Argument("record_max_rate_hz", "recorder_node", "max_rate_hz"),
+    Argument("compression", "recorder_node", "compression"),
 )
 
 

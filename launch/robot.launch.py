@@ -21,11 +21,12 @@ from launch.conditions import IfCondition
 from launch.substitutions import EqualsSubstitution, LaunchConfiguration
 from launch_ros.actions import Node
 
-from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_REMAPS
+from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_RECORDING, ROBOT_REMAPS
 from m2h_ros.ros.launching import (Argument, check_arguments, dds_profile, declare, exit_handler, node_settings,
                                    run_directory, stop_with_launch)
 
 NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
+ROBOT_EXCLUDE = "[" + ",".join(ROBOT_RECORDING["exclude"]) + "]"  # not the raw camera streams
 ARGUMENTS = (
     Argument("target_class", "episode_driver", "target_class"),
     Argument("steps", "episode_driver", "steps"),
@@ -40,6 +41,11 @@ ARGUMENTS = (
              description="run directory: the bag in OUTPUT/bag (default: a fresh runs/<date-time> per launch)"),
     Argument("overwrite", "recorder_node", "overwrite",
              description="replace a bag already in the run directory (else the recorder stops, naming it)"),
+    # What the bag keeps: YAML lists of topic names or patterns ([/camera/*,/tf]), rate limits TOPIC=HZ.
+    Argument("record_topics", "recorder_node", "topics"),
+    Argument("record_exclude", "recorder_node", "exclude", default=ROBOT_EXCLUDE),
+    Argument("record_max_rate_hz", "recorder_node", "max_rate_hz"),
+    Argument("compression", "recorder_node", "compression", default=ROBOT_RECORDING["compression"]),
 )
 
 

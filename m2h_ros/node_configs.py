@@ -10,6 +10,7 @@ from m2h_ros.core.audio.stft import AUDIO_OUTPUTS
 from m2h_ros.core.robot.base_motion import MotionLimits
 from m2h_ros.core.world.hrtf import parse_head
 from m2h_ros.errors import ConfigError
+from m2h_ros.io.topic_selection import COMPRESSIONS, TopicSelection
 
 TASKS = ("near_target", "far_target")
 SOUND_SPLITS = ("heard", "unheard")
@@ -123,11 +124,24 @@ class RecorderConfig(Config):
     output: str = setting("", "bag directory to create; empty: runs/<date-time> under the current "
                           "directory")
     overwrite: bool = setting(False, "replace a bag already at output (else the node stops, naming it)")
-    topics: tuple[str, ...] = setting((), "topics to record; empty: every topic seen on the graph")
+    topics: tuple[str, ...] = setting((), "topics to record, names or shell-style patterns (/camera/*); empty: "
+                                      "every topic seen on the graph")
+    exclude: tuple[str, ...] = setting((), "topics never to record, names or shell-style patterns (robot mode "
+                                       "leaves out the raw camera streams: each step's images are recorded apart)")
+    max_rate_hz: tuple[str, ...] = setting((), "per-topic rate limits, TOPIC=HZ (a pattern may stand for TOPIC): "
+                                           "a message sooner than 1/HZ after the last one recorded on its topic "
+                                           "is left out, and counted")
+    compression: str = setting("none", "MCAP chunk compression: none, or zstd (as rosbag2's mcap storage presets "
+                               "zstd_fast / zstd_small; Foxglove, ros2 bag and m2h-eval read it)",
+                               choices=COMPRESSIONS)
     discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01,
                                         max=60.0)
     flush_period_s: float = setting(0.25, "the open MCAP chunk is written to disk at least this often, "
                                     "so a killed recorder loses at most about this much", min=0.01, max=60.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        TopicSelection(self.topics, self.exclude, self.max_rate_hz)  # ConfigError for a malformed rate limit
 
 
 @dataclass(frozen=True)
@@ -228,3 +242,7 @@ ROBOT_REMAPS = {"capture_node": ((topics.AUDIO, topics.MIC_AUDIO),),
                 "audio_common_adapter": ((topics.AUDIO, topics.MIC_AUDIO),),
                 "controller_node": ((topics.ODOM, topics.STEP_ODOM), (topics.RGB, topics.STEP_RGB),
                                     (topics.DEPTH, topics.STEP_DEPTH))}
+# What robot mode records unless told otherwise: not the raw camera streams (30 Hz from a driver, most of
+# a bag), whose frames at each step the episode driver republishes on step/camera/... for the controller,
+# replay and the bag's viewers; chunks compressed.
+ROBOT_RECORDING = {"exclude": ("/" + topics.RGB, "/" + topics.DEPTH), "compression": "zstd"}

@@ -34,7 +34,8 @@ from pathlib import Path
 import yaml
 
 from m2h_ros.errors import M2HError
-from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_REMAPS
+from m2h_ros.io.topic_selection import COMPRESSIONS
+from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_RECORDING, ROBOT_REMAPS
 from m2h_ros.ros import stop_signals
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,6 +67,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--live-view", type=int, nargs="?", const=LIVE_VIEW_PORT, default=None, metavar="PORT",
                         help=f"also serve the run to Foxglove on ws://127.0.0.1:PORT (default {LIVE_VIEW_PORT}); "
                              "other live_view_node settings with --set")
+    recording = parser.add_argument_group("what the bag keeps (default: everything; in robot mode all but the raw "
+                                          "camera streams, zstd-compressed)")
+    recording.add_argument("--record-topics", nargs="+", default=None, metavar="TOPIC",
+                           help="record only these topics (names or shell-style patterns: '/camera/*')")
+    recording.add_argument("--record-exclude", nargs="*", default=None, metavar="TOPIC",
+                           help="never record these (names or patterns); with none given, leave nothing out")
+    recording.add_argument("--record-max-rate", action="append", default=None, metavar="TOPIC=HZ",
+                           help="record at most HZ messages per second of TOPIC (repeatable)")
+    recording.add_argument("--compression", choices=COMPRESSIONS, default=None,
+                           help="MCAP chunk compression (default: none; zstd in robot mode)")
     robot = parser.add_argument_group("robot mode")
     robot.add_argument("--robot", action="store_true", help="run on a robot: microphones, base, no simulator")
     robot.add_argument("--target-class", default="speech", choices=("speech", "music"))
@@ -110,6 +121,12 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     if args.separator_checkpoint:
         params["separator_node"]["checkpoint"] = str(Path(args.separator_checkpoint).resolve())
     params["recorder_node"]["output"] = str(args.out / "bag")
+    if args.robot:
+        params["recorder_node"].update(ROBOT_RECORDING)
+    for name, value in (("topics", args.record_topics), ("exclude", args.record_exclude),
+                        ("max_rate_hz", args.record_max_rate), ("compression", args.compression)):
+        if value is not None:
+            params["recorder_node"][name] = value
     if args.live_view is not None:
         params["live_view_node"] = {"port": args.live_view}
     for item in args.set:

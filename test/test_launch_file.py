@@ -148,6 +148,8 @@ def parameter_value(value, defaults: dict[str, str]):
     loaded = yaml.safe_load(text)
     if loaded is None:
         return ""
+    if isinstance(loaded, list):  # a list argument ([a,b], launch's typing.List): the node's tuple
+        return tuple(loaded)
     return loaded if type(loaded) in (bool, int, float, str) else text
 
 
@@ -377,3 +379,24 @@ def test_each_node_stops_should_the_launch_process_die(description, robot):
         assert setting.args[1] == str(os.getpid())  # the process that runs the launch file
         actions = list(launched.args[0])
         assert actions.index(setting) < min(actions.index(n) for n in nodes(launched).values())
+
+
+def test_what_the_bag_keeps_is_set_by_arguments_and_robot_mode_leaves_out_the_raw_camera(description, defaults,
+                                                                                        robot):
+    recorder = resolved_config(nodes(description)["recorder_node"], defaults)
+    assert (recorder.topics, recorder.exclude, recorder.max_rate_hz, recorder.compression) == ((), (), (), "none")
+    defaults = {**defaults, "record_topics": "[/audio,/cmd]", "record_exclude": "[/camera/*]",
+                "record_max_rate_hz": "[/odom=2]", "compression": "zstd"}
+    recorder = resolved_config(nodes(description)["recorder_node"], defaults)
+    assert (recorder.topics, recorder.exclude, recorder.max_rate_hz, recorder.compression) == (
+        ("/audio", "/cmd"), ("/camera/*",), ("/odom=2",), "zstd")
+    check_with(description, defaults)
+    error = ValueError  # LaunchArgumentError of the launching module loaded for the pipeline (robot loads another)
+    with pytest.raises(error, match=r"record_exclude:=/camera/\* .*accepted: a list \[A,B,...\] of str"):
+        check_with(description, defaults, record_exclude="/camera/*")  # launch_ros would refuse it at the node
+    with pytest.raises(error, match=r"record_max_rate_hz:=\[/odom=fast\] .*not TOPIC=HZ"):
+        check_with(description, defaults, record_max_rate_hz="[/odom=fast]")
+    robot_defaults = {argument(a, 0, "name"): a.kwargs["default_value"]
+                      for a in of_kind(robot, "DeclareLaunchArgument")}
+    recorder = resolved_config(nodes(robot)["recorder_node"], robot_defaults)
+    assert recorder.exclude == ("/camera/rgb/image_raw", "/camera/depth/image_raw") and recorder.compression == "zstd"

@@ -15,6 +15,7 @@ import signal
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
+from typing import List, get_type_hints
 
 from launch.actions import (DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler,
                             SetEnvironmentVariable)
@@ -62,6 +63,8 @@ def declare(arguments: tuple[Argument, ...], configs: dict[str, Config]) -> list
         value = getattr(config, argument.field) if argument.default is None else argument.default
         if isinstance(value, bool):
             value = str(value).lower()
+        elif isinstance(value, tuple):  # a YAML list, as typed after :=
+            value = "[" + ",".join(map(str, value)) + "]"
         choices = field.metadata["choices"]
         actions.append(DeclareLaunchArgument(
             argument.name, default_value=str(value),
@@ -74,7 +77,9 @@ def parameters(arguments: tuple[Argument, ...], configs: dict[str, Config]) -> d
     """node -> {field: the launch argument's value, typed as the field} (a path of digits stays a string)."""
     out: dict[str, dict[str, ParameterValue]] = {}
     for argument in arguments:
-        kind = type(getattr(configs[argument.node], argument.field))
+        kind = get_type_hints(type(configs[argument.node]))[argument.field]
+        if getattr(kind, "__origin__", None) is tuple:  # launch types a list as typing.List
+            kind = List[kind.__args__[0]]  # noqa: UP006 (launch's own spelling)
         out.setdefault(argument.node, {})[argument.field] = ParameterValue(LaunchConfiguration(argument.name),
                                                                          value_type=kind)
     return out

@@ -49,6 +49,13 @@ def check_episode(result, tmp_path, microphones: str) -> dict:
         assert f"[run]   {node:16s} exit 0" in result.stdout
     messages = bag_messages(tmp_path / "run" / "bag")
     assert "/ground_truth/target" not in messages and "/scores/step" not in messages  # no sim, no evaluator
+    # Robot mode's bag leaves out the raw camera streams (each step's images are kept) and compresses its chunks.
+    assert "/camera/rgb/image_raw" not in messages and "/camera/depth/image_raw" not in messages
+    from mcap.reader import make_reader
+
+    (mcap,) = (tmp_path / "run" / "bag").glob("*.mcap")
+    with mcap.open("rb") as stream:
+        assert {chunk.compression for chunk in make_reader(stream).get_summary().chunk_indexes} == {"zstd"}
     steps = [(m.episode_id, m.step) for m in messages["/audio"]]
     assert steps == [("robot", k) for k in range(STEPS + 1)]
     commands = messages["/cmd"]
