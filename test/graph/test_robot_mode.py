@@ -112,3 +112,12 @@ def test_without_odometry_or_camera_the_run_ends_within_its_timeout_naming_them(
             "within 5 s (input_timeout_s)") in result.stdout
     assert "microphone frames" not in result.stdout  # the microphone worked
     assert time.monotonic() - started < 120
+
+
+def test_without_any_robot_input_the_run_ends_naming_the_microphone_too(tmp_path):
+    """An audio_common stream that never comes (no driver), no base, no camera."""
+    result = robot_run(tmp_path, "--microphones", "audio_common", "--set", "episode_driver.input_timeout_s=5",
+                       timeout=180)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert ("step 0: no microphone frames on /mic/audio; no odometry on /odom; no camera images on "
+            "/camera/rgb/image_raw, /camera/depth/image_raw within 5 s (input_timeout_s)") in result.stdout
