@@ -9,6 +9,7 @@ message (naming the node), stops the other nodes and exits 1."""
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import os
 import signal
@@ -26,6 +27,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 
 from m2h_ros.config import Config, accepted_values, typed_value
 from m2h_ros.errors import ConfigError
+from m2h_ros.ros import stop_signals
 from m2h_ros.ros.stop_signals import PARENT_ENV
 
 
@@ -114,9 +116,10 @@ def checked_values(values: dict[str, str], arguments: tuple[Argument, ...], conf
             value = typed_value(type(config), argument.field, text)
             config.replace(**{argument.field: value})
         except ConfigError as exc:
+            accepted = accepted_values(type(config), field)
             raise LaunchArgumentError(
-                f"launch argument {argument.name}:={text} ({argument.node}.{argument.field}): {exc}; accepted: "
-                f"{accepted_values(type(config), field)}") from None
+                f"launch argument {argument.name}:={text} ({argument.node}.{argument.field}): {exc}"
+                + ("" if accepted == "text" else f"; accepted: {accepted}")) from None  # text: the error says it
         changes.setdefault(argument.node, {})[argument.field] = value
     checked = dict(configs)
     for node, node_changes in changes.items():  # what only the values together decide
@@ -145,7 +148,10 @@ def check_arguments(arguments: tuple[Argument, ...], configs: dict[str, Config],
 
 def stop_with_launch() -> SetEnvironmentVariable:
     """Each node stops (SIGTERM) when the launch process dies, however it dies (m2h_ros.nodes.entry reads
-    the variable): none outlives its launch to join the next run's graph."""
+    the variable): none outlives its launch to join the next run's graph. And the launch process, once it
+    exits, ignores Ctrl-C: Python's finalisation puts the default handler back, and a Ctrl-C still held
+    then killed it (exit -2) after every node had stopped cleanly."""
+    atexit.register(stop_signals.ignore)
     return SetEnvironmentVariable(PARENT_ENV, str(os.getpid()))
 
 
