@@ -22,11 +22,11 @@ NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "rec
 
 def run(node: str) -> None:
     stop_signals.install()  # the first SIGINT or SIGTERM stops the node, a later one cannot interrupt that
-    parent = os.environ.pop(stop_signals.PARENT_ENV, "")  # popped: not for processes the node starts
-    if parent.isdigit() and int(parent) in (os.getppid(), 1):  # 1: the launch died before this line
-        stop_signals.stop_with(int(parent))()  # none outlives its launch
     stops = set(stop_signals.STOP_SIGNALS)
     try:
+        parent = os.environ.pop(stop_signals.PARENT_ENV, "")  # popped: not for processes the node starts
+        if parent.isdigit() and int(parent) in (os.getppid(), 1):  # 1: the launch died before this line
+            stop_signals.stop_with(int(parent))()  # none outlives its launch (a dead one's SIGTERM: exit 0)
         # Held while importing: one that lands inside an extension module's initialisation (torch's) came
         # out as ImportError or was lost, and the node started anyway. Released here, it stops the node.
         signal.pthread_sigmask(signal.SIG_BLOCK, stops)
