@@ -9,7 +9,9 @@ recorder writes the run to a fresh runs/<date-time>/bag. The shipped Move2Hear p
 camera: camera:=true (default) passes the robot's RGB-D images (camera/rgb/image_raw and
 camera/depth/image_raw, 32FC1 metres, at the policy's 128 x 128); camera:=false runs only controllers
 that read no images (the training-free baselines) and refuses the others at start. The launch ends
-when the episode's last step is out (exit 0) or when any node exits (exit 1, naming it).
+when the episode's last step is out (exit 0) or when any node fails (exit 1, naming it). Every
+argument is checked before any node starts (a bad value ends the launch naming the argument and the
+values it accepts), and every node stops should the launch process die.
 """
 
 
@@ -19,15 +21,18 @@ from launch.conditions import IfCondition
 from launch.substitutions import EqualsSubstitution, LaunchConfiguration
 from launch_ros.actions import Node
 
-from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_REMAPS
-from m2h_ros.ros.launching import Argument, dds_profile, declare, exit_handler, node_settings, run_directory
+from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_RECORDING, ROBOT_REMAPS
+from m2h_ros.ros.launching import (Argument, check_arguments, dds_profile, declare, exit_handler, node_settings,
+                                   run_directory, stop_with_launch)
 
 NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
+ROBOT_EXCLUDE = "[" + ",".join(ROBOT_RECORDING["exclude"]) + "]"  # not the raw camera streams
 ARGUMENTS = (
     Argument("target_class", "episode_driver", "target_class"),
     Argument("steps", "episode_driver", "steps"),
     Argument("task", "episode_driver", "task"),
     Argument("camera", "episode_driver", "camera"),
+    Argument("input_timeout_s", "episode_driver", "input_timeout_s"),
     Argument("controller", "controller_node", "policy"),
     Argument("controller_checkpoint", "controller_node", "checkpoint"),
     Argument("separator_checkpoint", "separator_node", "checkpoint"),
@@ -36,6 +41,11 @@ ARGUMENTS = (
              description="run directory: the bag in OUTPUT/bag (default: a fresh runs/<date-time> per launch)"),
     Argument("overwrite", "recorder_node", "overwrite",
              description="replace a bag already in the run directory (else the recorder stops, naming it)"),
+    # What the bag keeps: YAML lists of topic names or patterns ([/camera/*,/tf]), rate limits TOPIC=HZ.
+    Argument("record_topics", "recorder_node", "topics"),
+    Argument("record_exclude", "recorder_node", "exclude", default=ROBOT_EXCLUDE),
+    Argument("record_max_rate_hz", "recorder_node", "max_rate_hz"),
+    Argument("compression", "recorder_node", "compression", default=ROBOT_RECORDING["compression"]),
 )
 
 
@@ -56,5 +66,7 @@ def generate_launch_description():
                         condition=source.get(name))
              for name in NODES}
     handlers = [exit_handler(action, name, finishes_run=name == "episode_driver") for name, action in nodes.items()]
-    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, *dds_profile(share), *nodes.values(),
+    # Every argument checked before any node starts; each node stops should the launch process die.
+    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, check_arguments(ARGUMENTS, configs),
+                              stop_with_launch(), *dds_profile(share), *nodes.values(),
                               *handlers])

@@ -6,6 +6,7 @@ in its metadata, so ``ros/params.py`` can declare it as a ROS parameter and the 
 """
 
 import dataclasses
+import difflib
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -41,6 +42,53 @@ def setting(default: Any, description: str, *, min: float | None = None, max: fl
     if isinstance(default, list | dict):
         raise TypeError("use a tuple for sequence defaults: configs are immutable")
     return dataclasses.field(default=default, metadata=meta)
+
+
+def unknown_names(unknown: Sequence[str], known: Sequence[str]) -> str:
+    """``unknown`` names, each with the known name nearest to it: a typo names its fix."""
+    parts = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
+    return ", ".join(parts)
+
+
+def typed_value(cls: type, name: str, text: str) -> Any:
+    """``text`` (as typed on a command line: ``name:=text``) as the type of field ``name`` of ``cls``:
+    read as YAML, as ROS reads a parameter's value; ConfigError for text of another type."""
+    kind = get_type_hints(cls)[name]
+    if kind is str:
+        return text  # a path of digits stays a string
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        value = text
+    if kind is float and type(value) is int:
+        return float(value)
+    item = kind.__args__[0] if getattr(kind, "__origin__", None) is tuple else None
+    if item is not None and isinstance(value, list) and all(type(v) is item for v in value):
+        return tuple(value)
+    if type(value) is not kind:
+        raise ConfigError(f"{cls.__name__}.{name} = {text!r}: expected {_KIND_NAMES.get(kind, 'a list')}")
+    return value
+
+
+def accepted_values(cls: type, f: dataclasses.Field) -> str:
+    """What field ``f`` of ``cls`` accepts, for an error message: its choices, or its type and range."""
+    meta = f.metadata
+    if meta.get("choices"):
+        return ", ".join(map(str, meta["choices"]))
+    kind = get_type_hints(cls)[f.name]
+    text = _KIND_NAMES.get(kind, f"a list [A,B,...] of {getattr(kind, '__args__', (str,))[0].__name__}")
+    lo, hi = meta.get("min"), meta.get("max")
+    if lo is not None and hi is not None:
+        return f"{text} from {lo} to {hi}"
+    if lo is not None or hi is not None:
+        return f"{text} {'>=' if lo is not None else '<='} {lo if lo is not None else hi}"
+    return text
+
+
+_KIND_NAMES = {bool: "true or false", int: "an integer", float: "a number", str: "text"}
 
 
 class Config:
@@ -81,7 +129,7 @@ class Config:
         unknown = sorted(set(values) - names)
         if unknown:
             where = f" in {source}" if source else ""
-            raise ConfigError(f"unknown {cls.__name__} setting(s){where}: {', '.join(unknown)}; "
+            raise ConfigError(f"unknown {cls.__name__} setting(s){where}: {unknown_names(unknown, sorted(names))}; "
                               f"known: {', '.join(sorted(names))}")
         return cls(**values)
 

@@ -1,6 +1,7 @@
 """The configuration of each node, one frozen dataclass each; ``params/<node>.yaml`` holds the defaults."""
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from m2h_ros.agents.registry import CONTROLLER_NAMES
 from m2h_ros import topics
@@ -10,6 +11,7 @@ from m2h_ros.core.robot.base_motion import MotionLimits
 from m2h_ros.core.world.hrtf import parse_head
 from m2h_ros.core.world.worlds import parse_world_spec
 from m2h_ros.errors import ConfigError
+from m2h_ros.io.topic_selection import COMPRESSIONS, TopicSelection
 
 TASKS = ("near_target", "far_target")
 SOUND_SPLITS = ("heard", "unheard")
@@ -17,6 +19,13 @@ SCENE_SPLITS = ("train", "val", "test")
 SIM_MODES = ("lockstep", "free_running")
 TARGET_CLASSES = ("", "speech", "music")
 PIPELINE_NODES = ("separator_node", "controller_node", "evaluator_node", "recorder_node")
+
+
+def check_file(config: Config, name: str, path: str | Path | None, what: str) -> None:
+    """ConfigError unless the file field ``name`` names (empty: none) exists: a missing one is named when
+    the settings are read, before any node starts, not once every node is up and this one loads it."""
+    if path and not Path(path).expanduser().is_file():
+        raise ConfigError(f"{type(config).__name__}.{name} = {str(path)!r}: no such file ({what})")
 
 
 @dataclass(frozen=True)
@@ -64,9 +73,9 @@ class SimConfig(Config):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        parse_head(self.head)
+        check_file(self, "head", parse_head(self.head).path, "a SOFA HRIR file")
         if self.world:
-            parse_world_spec(self.world)
+            parse_world_spec(self.world)  # names a missing map or mesh before anything starts
         unknown = sorted(set(self.expect_nodes) - set(PIPELINE_NODES))
         if unknown:
             raise ConfigError(f"SimConfig.expect_nodes = {list(self.expect_nodes)}: unknown node(s) "
@@ -89,6 +98,10 @@ class SeparatorNodeConfig(Config):
                           "in-process evaluations run on the CPU: cpu gives their numbers bit for bit, a GPU "
                           "the same to float tolerance", choices=DEVICES)
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_file(self, "checkpoint", self.checkpoint, "a separator checkpoint")
+
 
 @dataclass(frozen=True)
 class ControllerConfig(Config):
@@ -101,21 +114,40 @@ class ControllerConfig(Config):
     camera: bool = setting(True, "camera images come with each step (the simulator's, or a robot's RGB-D); "
                            "false: a controller that reads them is refused at start")
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_file(self, "checkpoint", self.checkpoint, "a policy or sound-locator checkpoint")
+
 
 @dataclass(frozen=True)
 class EvaluatorConfig(Config):
     output_dir: str = setting("", "directory for results.md/.csv/.json and the SI-SDR plot, "
                               "rewritten after the first episode, every 10 s and at the end; empty: none")
+    episodes: int = setting(0, "episodes the run is to score (run_pipeline.py and the launch file set it): "
+                            "tables of fewer at shutdown say the run is partial; 0: not known", min=0)
 @dataclass(frozen=True)
 class RecorderConfig(Config):
     output: str = setting("", "bag directory to create; empty: runs/<date-time> under the current "
                           "directory")
     overwrite: bool = setting(False, "replace a bag already at output (else the node stops, naming it)")
-    topics: tuple[str, ...] = setting((), "topics to record; empty: every topic seen on the graph")
+    topics: tuple[str, ...] = setting((), "topics to record, names or shell-style patterns (/camera/*); empty: "
+                                      "every topic seen on the graph")
+    exclude: tuple[str, ...] = setting((), "topics never to record, names or shell-style patterns (robot mode "
+                                       "leaves out the raw camera streams: each step's images are recorded apart)")
+    max_rate_hz: tuple[str, ...] = setting((), "per-topic rate limits, TOPIC=HZ (a pattern may stand for TOPIC): "
+                                           "a message sooner than 1/HZ after the last one recorded on its topic "
+                                           "is left out, and counted")
+    compression: str = setting("none", "MCAP chunk compression: none, or zstd (as rosbag2's mcap storage presets "
+                               "zstd_fast / zstd_small; Foxglove, ros2 bag and m2h-eval read it)",
+                               choices=COMPRESSIONS)
     discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01,
                                         max=60.0)
     flush_period_s: float = setting(0.25, "the open MCAP chunk is written to disk at least this often, "
                                     "so a killed recorder loses at most about this much", min=0.01, max=60.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        TopicSelection(self.topics, self.exclude, self.max_rate_hz)  # ConfigError for a malformed rate limit
 
 
 @dataclass(frozen=True)
@@ -172,6 +204,9 @@ class EpisodeDriverConfig(Config):
                               min=0.0, max=60.0)
     step_timeout_s: float = setting(120.0, "seconds to wait for a step's motion_result before the node "
                                     "stops, naming what did not answer", min=0.1, max=3600.0)
+    input_timeout_s: float = setting(30.0, "seconds a step may wait for the robot's inputs (a microphone frame, "
+                                     "odometry, camera images) before the node stops, naming what is missing",
+                                     min=0.1, max=3600.0)
 
 
 @dataclass(frozen=True)
@@ -213,3 +248,7 @@ ROBOT_REMAPS = {"capture_node": ((topics.AUDIO, topics.MIC_AUDIO),),
                 "audio_common_adapter": ((topics.AUDIO, topics.MIC_AUDIO),),
                 "controller_node": ((topics.ODOM, topics.STEP_ODOM), (topics.RGB, topics.STEP_RGB),
                                     (topics.DEPTH, topics.STEP_DEPTH))}
+# What robot mode records unless told otherwise: not the raw camera streams (30 Hz from a driver, most of
+# a bag), whose frames at each step the episode driver republishes on step/camera/... for the controller,
+# replay and the bag's viewers; chunks compressed.
+ROBOT_RECORDING = {"exclude": ("/" + topics.RGB, "/" + topics.DEPTH), "compression": "zstd"}

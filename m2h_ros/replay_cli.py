@@ -28,7 +28,9 @@ EXIT_MISMATCH, EXIT_FATAL, EXIT_PROBLEMS = 1, 2, 3
 
 def build_parser() -> argparse.ArgumentParser:
     defaults = ReplayConfig()
-    parser = argparse.ArgumentParser(prog="m2h-eval", description=__doc__.split("\n\n")[0].split(": ", 1)[1])
+    paragraphs = __doc__.split("\n\n")
+    exit_status = next(p for p in paragraphs if p.startswith("Exit status")).replace("``", "")
+    parser = argparse.ArgumentParser(prog="m2h-eval", description=paragraphs[0].split(": ", 1)[1], epilog=exit_status)
     parser.add_argument("bags", nargs="+", type=Path, help="rosbag2 bag directories (or .mcap files)")
     parser.add_argument("--out", type=Path, default=Path("m2h-eval"), help="output folder (default: m2h-eval)")
     parser.add_argument("--namespace", default=defaults.namespace,

@@ -20,7 +20,6 @@ itself be killed (SIGKILL, an out-of-memory kill), every node gets SIGTERM and s
 from __future__ import annotations
 
 import argparse
-import ctypes
 import dataclasses
 import os
 import random
@@ -36,7 +35,9 @@ import yaml
 
 from m2h_ros.core.world.worlds import canonical_spec
 from m2h_ros.errors import M2HError
-from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_REMAPS
+from m2h_ros.io.topic_selection import COMPRESSIONS
+from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_RECORDING, ROBOT_REMAPS
+from m2h_ros.ros import stop_signals
 
 ROOT = Path(__file__).resolve().parents[1]
 # Start order: the live view and the recorder first, so they hear every topic from its first message.
@@ -46,7 +47,6 @@ STOP_ORDER = ("controller_node", "separator_node", "evaluator_node", "base_node"
               "audio_common_adapter", "recorder_node", "live_view_node")
 LIVE_VIEW_PORT = 8765  # Foxglove's default
 STOP_TIMEOUT_S = 20.0
-PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -71,6 +71,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--live-view", type=int, nargs="?", const=LIVE_VIEW_PORT, default=None, metavar="PORT",
                         help=f"also serve the run to Foxglove on ws://127.0.0.1:PORT (default {LIVE_VIEW_PORT}); "
                              "other live_view_node settings with --set")
+    recording = parser.add_argument_group("what the bag keeps (default: everything; in robot mode all but the raw "
+                                          "camera streams, zstd-compressed)")
+    recording.add_argument("--record-topics", nargs="+", default=None, metavar="TOPIC",
+                           help="record only these topics (names or shell-style patterns: '/camera/*')")
+    recording.add_argument("--record-exclude", nargs="*", default=None, metavar="TOPIC",
+                           help="never record these (names or patterns); with none given, leave nothing out")
+    recording.add_argument("--record-max-rate", action="append", default=None, metavar="TOPIC=HZ",
+                           help="record at most HZ messages per second of TOPIC (repeatable)")
+    recording.add_argument("--compression", choices=COMPRESSIONS, default=None,
+                           help="MCAP chunk compression (default: none; zstd in robot mode)")
     robot = parser.add_argument_group("robot mode")
     robot.add_argument("--robot", action="store_true", help="run on a robot: microphones, base, no simulator")
     robot.add_argument("--target-class", default="speech", choices=("speech", "music"))
@@ -117,6 +127,12 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     if args.separator_checkpoint:
         params["separator_node"]["checkpoint"] = str(Path(args.separator_checkpoint).resolve())
     params["recorder_node"]["output"] = str(args.out / "bag")
+    if args.robot:
+        params["recorder_node"].update(ROBOT_RECORDING)
+    for name, value in (("topics", args.record_topics), ("exclude", args.record_exclude),
+                        ("max_rate_hz", args.record_max_rate), ("compression", args.compression)):
+        if value is not None:
+            params["recorder_node"][name] = value
     if args.live_view is not None:
         params["live_view_node"] = {"port": args.live_view}
     for item in args.set:
@@ -126,6 +142,8 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
             raise SystemExit(f"run_pipeline: --set {item!r} must be NODE.PARAM=VALUE with NODE one of "
                              f"{', '.join(params)}")
         params[node][name] = yaml.safe_load(value)
+    if not args.robot:  # what the evaluator's tables count against: fewer scored means a partial run
+        params["evaluator_node"].setdefault("episodes", params["sim_node"]["num_episodes"])
     return params
 
 
@@ -173,34 +191,17 @@ def stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
-def stop_with(parent: int):
-    """What each node's process runs before its exec: SIGTERM to it when run_pipeline dies, however it
-    dies. The nodes run in sessions of their own (so a Ctrl-C reaches them in stop order, not all at
-    once), so nothing else would stop them when this script is killed outright."""
-
-    prctl = ctypes.CDLL(None).prctl  # looked up here: the child of a fork should only call it
-
-    def set_parent_death_signal() -> None:
-        prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-        if os.getppid() != parent:  # died before the line above took effect
-            os.kill(os.getpid(), signal.SIGTERM)
-
-    return set_parent_death_signal
-
-
 def last_error(log: Path) -> str:
     lines = [line for line in log.read_text(errors="replace").splitlines() if "FATAL" in line or "ERROR" in line
              or "Error" in line]
     return lines[-1].strip() if lines else ""
 
 
-def interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt  # SIGTERM (kill, timeout, a batch system) stops the nodes as Ctrl-C does
-
-
 def main(argv=None) -> int:
     args = parse_args(argv)
-    signal.signal(signal.SIGTERM, interrupt)
+    # SIGTERM (kill, timeout, a batch system) stops the nodes as Ctrl-C does; a second Ctrl-C (or a held
+    # one) cannot interrupt stopping them.
+    stop_signals.install()
     args.out = (args.out or ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")).resolve()
     if (args.out / "bag").exists():
         raise SystemExit(f"run_pipeline: {args.out / 'bag'} exists; choose another --out")
@@ -235,13 +236,14 @@ def main(argv=None) -> int:
                 continue
             logs[node] = args.out / "logs" / f"{node}.log"
             command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
-            for name, value in params[node].items():
-                command += ["-p", f"{name}:={ros_value(value)}"]
+            for name in params[node]:  # typed as the config holds them: 5 for a float is 5.0, which ROS needs
+                command += ["-p", f"{name}:={ros_value(getattr(configs[node], name))}"]
             for topic, to in ROBOT_REMAPS.get(node, ()) if args.robot else ():
                 command += ["-r", f"{topic}:={to}"]
             procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,
+                                           # Sessions of their own: a Ctrl-C reaches them in stop order
                                            env=env, start_new_session=True, cwd=ROOT,
-                                           preexec_fn=stop_with(os.getpid()))
+                                           preexec_fn=stop_signals.stop_with(os.getpid()))
         while procs[finisher].poll() is None:
             early = [n for n, p in procs.items() if n != finisher and p.poll() is not None]
             if early:  # the run cannot go on: stop now rather than wait out the sim's step timeout
@@ -255,6 +257,7 @@ def main(argv=None) -> int:
         if finisher in procs:
             stop(procs[finisher])
     finally:
+        stop_signals.closing()
         unlisted = [n for n in procs if n not in STOP_ORDER and n != finisher]  # before the recorder
         for node in unlisted + [n for n in STOP_ORDER if n in procs]:
             stop(procs[node])
@@ -283,4 +286,9 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        exit_code = main()
+    except KeyboardInterrupt:  # while the data were prepared: no node was started yet
+        exit_code = 130
+    stop_signals.ignore()
+    sys.exit(exit_code)

@@ -58,3 +58,20 @@ def test_unknown_key_and_missing_section(tmp_path):
     bad.write_text("sim_node: [unclosed\n")
     with pytest.raises(ConfigError, match="cannot read params file"):
         node_configs.SimConfig.from_yaml(bad, "sim_node")
+
+
+def test_a_mistyped_name_names_the_nearest_setting():
+    with pytest.raises(ConfigError, match=r"num_episode \(did you mean num_episodes\?\)"):
+        node_configs.SimConfig.from_dict({"num_episode": 1})
+    with pytest.raises(ConfigError, match=r"setting\(s\): zzz; known"):  # nothing near: no guess
+        node_configs.SimConfig.from_dict({"zzz": 1})
+
+
+def test_files_a_setting_names_must_exist(tmp_path):
+    with pytest.raises(ConfigError, match=r"SimConfig.head = '/nonexistent.sofa': no such file \(a SOFA HRIR file\)"):
+        node_configs.SimConfig(head="sofa:/nonexistent.sofa")
+    with pytest.raises(ConfigError, match=r"SeparatorNodeConfig.checkpoint = '/none.pt': no such file"):
+        node_configs.SeparatorNodeConfig(checkpoint="/none.pt")
+    checkpoint = tmp_path / "policy.pt"
+    checkpoint.write_bytes(b"")
+    assert node_configs.ControllerConfig(checkpoint=str(checkpoint)).checkpoint == str(checkpoint)

@@ -148,6 +148,8 @@ def parameter_value(value, defaults: dict[str, str]):
     loaded = yaml.safe_load(text)
     if loaded is None:
         return ""
+    if isinstance(loaded, list):  # a list argument ([a,b], launch's typing.List): the node's tuple
+        return tuple(loaded)
     return loaded if type(loaded) in (bool, int, float, str) else text
 
 
@@ -215,13 +217,20 @@ def test_any_other_exit_ends_the_launch_with_an_error_naming_the_node(descriptio
     assert set(handlers) == set(nodes(description))
     running, stopping = types.SimpleNamespace(is_shutdown=False), types.SimpleNamespace(is_shutdown=True)
     for name, on_exit in handlers.items():
-        for code in (2, -9) if name == "sim_node" else (0, 2, -9):
+        for code in (2, -9):
             with pytest.raises(node_exited, match=f"^{name} exited with code {code} before the run finished"):
                 on_exit(types.SimpleNamespace(returncode=code), running)
+        # A node exits 0 only when asked to stop: a terminal's Ctrl-C reaches the nodes as well as launch, and
+        # one may exit before launch has begun its own shutdown. That is a user's stop, not a failure.
+        (shutdown,) = on_exit(types.SimpleNamespace(returncode=0), running)
+        assert type(shutdown.kwargs["event"]).__name__ == "Shutdown"
         for code in (0, -2, -15):  # stopped by launch itself
             assert on_exit(types.SimpleNamespace(returncode=code), stopping) is None
         with pytest.raises(node_exited, match=f"^{name} exited with code 2 while the run was stopping"):
             on_exit(types.SimpleNamespace(returncode=2), stopping)
+    # A killed node logged nothing: the message says what killed it instead of pointing at its log.
+    with pytest.raises(node_exited, match=r"killed by SIGKILL from outside the launch: the node could log nothing"):
+        handlers["separator_node"](types.SimpleNamespace(returncode=-9), running)
 
 
 def test_every_setting_a_user_needs_is_an_argument(description, defaults):
@@ -243,10 +252,14 @@ def test_each_launch_gets_a_fresh_run_directory(description, defaults):
 
 
 def test_the_dds_profile_is_set_unless_the_environment_names_one(launch_module, monkeypatch):
-    (setting,) = of_kind(launch_module.generate_launch_description(), "SetEnvironmentVariable")
+    def profiles() -> list[Entity]:
+        return [s for s in of_kind(launch_module.generate_launch_description(), "SetEnvironmentVariable")
+                if s.args[0] == "FASTRTPS_DEFAULT_PROFILES_FILE"]
+
+    (setting,) = profiles()
     assert setting.args == ("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "params" / "fastdds.xml"))
     monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", "/elsewhere.xml")
-    assert not of_kind(launch_module.generate_launch_description(), "SetEnvironmentVariable")
+    assert not profiles()
 
 
 def test_launch_and_launch_ros_are_declared_and_the_recipes_installed():
@@ -316,3 +329,74 @@ def test_robot_mode_ends_with_the_episode_driver_and_on_any_other_exit(robot):
     assert type(shutdown.kwargs["event"]).__name__ == "Shutdown"
     with pytest.raises(node_exited, match="^capture_node exited with code 2"):
         handlers["capture_node"](types.SimpleNamespace(returncode=2), running)
+
+
+def argument_check(description):
+    """The check the launch runs before its nodes, and the launch actions that come after it."""
+    actions = list(description.args[0])
+    (check,) = [a for a in actions if type(a).__name__ == "OpaqueFunction"]
+    return check.kwargs["function"], actions[actions.index(check) + 1:]
+
+
+def check_with(description, defaults: dict[str, str], **values: str) -> None:
+    check, _ = argument_check(description)
+    assert check(types.SimpleNamespace(launch_configurations={**defaults, **values})) == []
+
+
+def test_every_argument_is_checked_before_any_node_starts(description, defaults):
+    _, after = argument_check(description)
+    assert set(nodes(description).values()) <= set(after)  # every node comes after the check
+    check_with(description, defaults)  # the defaults pass
+    error = sys.modules["m2h_ros.ros.launching"].LaunchArgumentError
+    with pytest.raises(error, match=r"^launch argument episodes:=abc \(sim_node.num_episodes\): .*expected an "
+                                    r"integer; accepted: an integer from 1 to 100000$"):
+        check_with(description, defaults, episodes="abc")
+    with pytest.raises(error, match=r"episodes:=0 .*must be >= 1"):
+        check_with(description, defaults, episodes="0")
+    with pytest.raises(error, match=r"overwrite:=yes please .*accepted: true or false"):
+        check_with(description, defaults, overwrite="yes please")
+    with pytest.raises(error, match=r"controller:=no_such .*accepted: .*move2hear"):
+        check_with(description, defaults, controller="no_such")
+    with pytest.raises(error, match=r"head:=sofa:/nonexistent.sofa .*no such file"):
+        check_with(description, defaults, head="sofa:/nonexistent.sofa")
+    with pytest.raises(error, match=r"separator_checkpoint:=/nonexistent.pt .*no such file"):
+        check_with(description, defaults, separator_checkpoint="/nonexistent.pt")
+
+
+def test_robot_arguments_are_checked_before_any_node_starts(robot):
+    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
+    _, after = argument_check(robot)
+    assert set(nodes(robot).values()) <= set(after)
+    check_with(robot, defaults)
+    with pytest.raises(sys.modules["m2h_ros.ros.launching"].LaunchArgumentError,
+                       match=r"^launch argument steps:=abc \(episode_driver.steps\)"):
+        check_with(robot, defaults, steps="abc")
+
+
+def test_each_node_stops_should_the_launch_process_die(description, robot):
+    for launched in (description, robot):
+        (setting,) = [s for s in of_kind(launched, "SetEnvironmentVariable") if s.args[0] == "M2H_STOP_WITH_PARENT"]
+        assert setting.args[1] == str(os.getpid())  # the process that runs the launch file
+        actions = list(launched.args[0])
+        assert actions.index(setting) < min(actions.index(n) for n in nodes(launched).values())
+
+
+def test_what_the_bag_keeps_is_set_by_arguments_and_robot_mode_leaves_out_the_raw_camera(description, defaults,
+                                                                                        robot):
+    recorder = resolved_config(nodes(description)["recorder_node"], defaults)
+    assert (recorder.topics, recorder.exclude, recorder.max_rate_hz, recorder.compression) == ((), (), (), "none")
+    defaults = {**defaults, "record_topics": "[/audio,/cmd]", "record_exclude": "[/camera/*]",
+                "record_max_rate_hz": "[/odom=2]", "compression": "zstd"}
+    recorder = resolved_config(nodes(description)["recorder_node"], defaults)
+    assert (recorder.topics, recorder.exclude, recorder.max_rate_hz, recorder.compression) == (
+        ("/audio", "/cmd"), ("/camera/*",), ("/odom=2",), "zstd")
+    check_with(description, defaults)
+    error = ValueError  # LaunchArgumentError of the launching module loaded for the pipeline (robot loads another)
+    with pytest.raises(error, match=r"record_exclude:=/camera/\* .*accepted: a list \[A,B,...\] of str"):
+        check_with(description, defaults, record_exclude="/camera/*")  # launch_ros would refuse it at the node
+    with pytest.raises(error, match=r"record_max_rate_hz:=\[/odom=fast\] .*not TOPIC=HZ"):
+        check_with(description, defaults, record_max_rate_hz="[/odom=fast]")
+    robot_defaults = {argument(a, 0, "name"): a.kwargs["default_value"]
+                      for a in of_kind(robot, "DeclareLaunchArgument")}
+    recorder = resolved_config(nodes(robot)["recorder_node"], robot_defaults)
+    assert recorder.exclude == ("/camera/rgb/image_raw", "/camera/depth/image_raw") and recorder.compression == "zstd"

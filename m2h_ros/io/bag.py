@@ -30,6 +30,8 @@ from m2h_ros.io.msg_defs import ensure_known, typestore as m2h_typestore
 
 METADATA_VERSION = 9  # rosbag2 Jazzy's metadata.yaml version
 CHUNK_SIZE = 1 << 20  # bytes of records per chunk, as rosbags and rosbag2 (mcap's default)
+# Of each MCAP chunk (m2h_ros.io.topic_selection.COMPRESSIONS, the recorder's choices, names these)
+COMPRESSION_TYPES = {"none": CompressionType.NONE, "zstd": CompressionType.ZSTD}
 LIBRARY = "m2h_ros"
 
 
@@ -72,9 +74,11 @@ class BagWriter:
     (:class:`~m2h_ros.io.mcap_stream.BagStream`)."""
 
     def __init__(self, path: str | Path, *, typestore: Typestore | None = None, overwrite: bool = False,
-                 flush_period_s: float | None = None):
+                 flush_period_s: float | None = None, compression: str = "none"):
         if flush_period_s is not None and not flush_period_s > 0:
             raise BagError(f"flush_period_s must be > 0 (or None), got {flush_period_s!r}")
+        if compression not in COMPRESSION_TYPES:
+            raise BagError(f"compression must be one of {', '.join(COMPRESSION_TYPES)}, got {compression!r}")
         self.path = Path(path)
         self.flush_period_s = flush_period_s
         self._chunk_opened: float | None = None  # monotonic time of the open chunk's first message
@@ -89,7 +93,7 @@ class BagWriter:
             self._stream = self._file.open("xb")
         except OSError as exc:
             raise BagError(f"cannot create bag {self.path}: {exc}") from exc
-        self._writer = Writer(self._stream, chunk_size=CHUNK_SIZE, compression=CompressionType.NONE,
+        self._writer = Writer(self._stream, chunk_size=CHUNK_SIZE, compression=COMPRESSION_TYPES[compression],
                               enable_crcs=True)
         self._writer.start(profile="ros2", library=LIBRARY)
         self._schemas: dict[str, int] = {}

@@ -14,17 +14,19 @@ import os
 import signal
 import sys
 
+from m2h_ros.ros import stop_signals
+
 NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node",
          "capture_node", "base_node", "episode_driver", "audio_common_adapter")
 
 
 def run(node: str) -> None:
-    # Started in the background of a non-interactive shell, a process inherits SIGINT ignored; a node must
-    # still stop on it (Ctrl-C, ros2 launch's shutdown), as rclpy's own handler would make it.
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # as Ctrl-C (m2h_ros.ros.spin says why)
-    stops = {signal.SIGINT, signal.SIGTERM}
+    stop_signals.install()  # the first SIGINT or SIGTERM stops the node, a later one cannot interrupt that
+    stops = set(stop_signals.STOP_SIGNALS)
     try:
+        parent = os.environ.pop(stop_signals.PARENT_ENV, "")  # popped: not for processes the node starts
+        if parent.isdigit() and int(parent) in (os.getppid(), 1):  # 1: the launch died before this line
+            stop_signals.stop_with(int(parent))()  # none outlives its launch (a dead one's SIGTERM: exit 0)
         # Held while importing: one that lands inside an extension module's initialisation (torch's) came
         # out as ImportError or was lost, and the node started anyway. Released here, it stops the node.
         signal.pthread_sigmask(signal.SIG_BLOCK, stops)
@@ -36,6 +38,8 @@ def run(node: str) -> None:
         sys.exit(0)
     try:
         module.main()
+    except KeyboardInterrupt:  # a stop before the node's own main() could take it: nothing was opened yet
+        os._exit(0)
     except SystemExit as exc:
         sys.stdout.flush()
         sys.stderr.flush()

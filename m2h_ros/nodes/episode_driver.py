@@ -61,6 +61,8 @@ class EpisodeDriver(Node):
                 self.pub_images[topic] = publisher(Image, out)
                 subscribe(Image, topic, lambda m, topic=topic: self.images.__setitem__(topic, m), qos_profile_sensor_data)
         self.odom: Odometry | None = None
+        self.heard_frame = False  # a microphone frame came since the step began waiting for its inputs
+        self.inputs_since = time.monotonic()  # when the current step began waiting for its inputs
         self.step = 0
         self.ready_after_ns = 0  # the next step's frame must start at or after this capture time
         self.waiting_since: float | None = None  # monotonic time the last step went out
@@ -86,6 +88,7 @@ class EpisodeDriver(Node):
     def on_frame(self, msg: BinauralAudio) -> None:
         if self.waiting_since is not None:
             return  # the step before is still being carried out
+        self.heard_frame = True
         start_ns = convert.nanoseconds_of(msg.header.stamp)  # capture time of the frame's first sample
         if start_ns < self.ready_after_ns:
             return
@@ -126,9 +129,27 @@ class EpisodeDriver(Node):
         self.ready_after_ns = convert.nanoseconds_of(msg.header.stamp) + int(self.config.settle_s * 1e9)
         self.step += 1
         self.waiting_since = None
+        self.heard_frame, self.inputs_since = False, time.monotonic()
+
+    def missing_inputs(self) -> list[str]:
+        """What the current step still waits for."""
+        missing = [] if self.heard_frame else [f"microphone frames on {self.resolve_topic_name(topics.MIC_AUDIO)}"]
+        if self.odom is None:
+            missing.append(f"odometry on {self.resolve_topic_name(topics.ODOM)}")
+        images = [self.resolve_topic_name(topic) for topic in self.pub_images if topic not in self.images]
+        if images:
+            missing.append(f"camera images on {', '.join(images)}")
+        return missing
 
     def tick(self) -> None:
-        if self.waiting_since is None or time.monotonic() - self.waiting_since <= self.config.step_timeout_s:
+        now = time.monotonic()
+        if self.waiting_since is None:
+            if now - self.inputs_since > self.config.input_timeout_s and (missing := self.missing_inputs()):
+                raise PipelineError(f"step {self.step}: no {'; no '.join(missing)} within "
+                                    f"{self.config.input_timeout_s:g} s (input_timeout_s). Are the robot's drivers "
+                                    "running, on these topics (ros2 topic list)?")
+            return
+        if now - self.waiting_since <= self.config.step_timeout_s:
             return
         if self.last_step is not None:
             raise PipelineError(f"no {topics.SEPARATED_AUDIO} for the last step {self.last_step} within "

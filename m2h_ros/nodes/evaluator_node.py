@@ -114,15 +114,32 @@ class EvaluatorNode(Node):
         # Tables of every episode so far: at the first episode, then at most every WRITE_PERIOD_S
         # (rewriting them per episode would grow quadratically over a long run); all at shutdown.
         if self.output is not None and time.monotonic() - self.written_at > WRITE_PERIOD_S:
-            write_results(self.results, self.output, title="m2h_ros pipeline run", plot=False)
+            self.write(final=False)
             self.written_at = time.monotonic()
+
+    def completeness(self, *, final: bool) -> str:
+        """How much of the run the tables hold: '' for a whole run, else what a reader must know."""
+        scored, planned = len(self.results), self.config.episodes
+        of = f" of {planned}" if planned else ""
+        if not final:
+            return f"in progress: {scored}{of} episodes scored so far"
+        if (planned and scored < planned) or self.trackers:
+            return f"partial: {scored}{of} episodes scored, the run ended early"
+        return ""
+
+    def write(self, *, final: bool) -> dict[str, Path]:
+        state = self.completeness(final=final)
+        return write_results(self.results, self.output, title="m2h_ros pipeline run" + (f" ({state})" if state else ""),
+                             plot=final, meta={"episodes_planned": self.config.episodes,
+                                               "episodes_scored": len(self.results), "complete": not state})
 
     def destroy_node(self) -> None:
         if self.output is not None and self.results:
-            paths = write_results(self.results, self.output, title="m2h_ros pipeline run")
+            paths = self.write(final=True)
+            state = self.completeness(final=True)
             # The table itself too: under ros2 launch this output is all a user sees of the scores.
-            print(f"evaluator: {len(self.results)} episodes scored -> {paths['markdown']}\n"
-                  f"{markdown_table(summarize(self.results))}", flush=True)
+            print(f"evaluator: {len(self.results)} episodes scored{f' ({state.upper()})' if state else ''} -> "
+                  f"{paths['markdown']}\n{markdown_table(summarize(self.results))}", flush=True)
         super().destroy_node()
 
 

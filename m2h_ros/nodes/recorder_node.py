@@ -11,6 +11,7 @@ from rclpy.node import Node
 from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
 from m2h_ros.io.derived import Derived, offered_qos as derived_qos
+from m2h_ros.io.topic_selection import TopicSelection
 from m2h_ros.node_configs import RecorderConfig
 from m2h_ros.ros.introspection import adapted_qos, definition_mismatch, offered_qos, offered_topics
 from m2h_ros.ros.params import declare_config
@@ -31,10 +32,20 @@ class RecorderNode(Node):
         super().__init__("recorder_node")
         self.config: RecorderConfig = declare_config(self, RecorderConfig)
         output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
+        if Path(output).exists() and not self.config.overwrite:
+            # In what each startup takes: BagWriter's own message names its Python argument.
+            raise BagError(f"bag {output} already exists: choose another output, or replace it with overwrite:=true "
+                           "(ros2 launch), -p overwrite:=true (ros2 run) or --set recorder_node.overwrite=true "
+                           "(run_pipeline.py)")
         self.writer = BagWriter(Path(output), flush_period_s=self.config.flush_period_s,
-                                overwrite=self.config.overwrite)
-        self.recorded: dict[str, str] = {}  # topic -> type name
+                                overwrite=self.config.overwrite, compression=self.config.compression)
+        cfg = self.config
+        self.selection = TopicSelection(cfg.topics, cfg.exclude, cfg.max_rate_hz)
+        self.recorded: dict[str, str] = {}  # topic -> type name ("": seen, not recorded)
         self.counts: dict[str, int] = {}
+        self.intervals: dict[str, int] = {}  # topic -> the shortest time (ns) between two of its messages kept
+        self.last_kept: dict[str, int] = {}  # topic -> receive time (ns) of its last message kept
+        self.rate_dropped: dict[str, int] = {}  # topic -> messages left out by its rate limit
         self.held: list[tuple[str, bytes]] | None = []  # log lines before the first data; None once written
         # TF and playable audio for the bag, derived from what is recorded (unless the graph publishes them)
         self.derived = Derived(namespace=self.get_namespace())
@@ -44,8 +55,11 @@ class RecorderNode(Node):
         self.get_logger().info(f"recording to {self.writer.path}")
 
     def discover_topics(self) -> None:
-        for offer in offered_topics(self, known=self.recorded.keys() | IGNORED_TOPICS, wanted=set(self.config.topics)):
+        for offer in offered_topics(self, known=self.recorded.keys() | IGNORED_TOPICS):
             topic, problem = offer.name, offer.problem
+            if not self.selection.records(topic):
+                self.recorded[topic] = ""
+                continue
             if not problem:
                 try:
                     self.writer.add_topic(topic, offer.type_name, offered_qos=offered_qos(self, topic))
@@ -61,6 +75,9 @@ class RecorderNode(Node):
                 self.get_logger().warning(mismatch)
             self.recorded[topic] = offer.type_name
             self.counts[topic] = 0
+            interval = self.selection.min_interval_ns(topic)
+            if interval is not None:
+                self.intervals[topic], self.rate_dropped[topic] = interval, 0
             self.create_subscription(
                 offer.msg_type, topic, lambda data, topic=topic: self.write(topic, data),
                 adapted_qos(self, topic), raw=True,
@@ -74,10 +91,16 @@ class RecorderNode(Node):
                 self.held.append((topic, data))
                 return
             self.write_held(now)
+        interval = self.intervals.get(topic)
+        if interval is not None:
+            if now - self.last_kept.get(topic, now - interval) < interval:
+                self.rate_dropped[topic] += 1
+                return
+            self.last_kept[topic] = now
         self.writer.write_raw(topic, self.recorded[topic], now, data)
         self.counts[topic] += 1
         for extra, msgtype, extra_data in self.derived.feed(topic, self.recorded[topic], data):
-            if extra in self.recorded:  # the graph publishes it: that one is in the bag
+            if extra in self.recorded or not self.selection.records(extra):  # the graph's own, or left out
                 continue
             if extra not in self.counts:
                 self.writer.add_topic(extra, msgtype, offered_qos=derived_qos(extra))
@@ -100,7 +123,9 @@ class RecorderNode(Node):
         super().destroy_node()
         # Logged after the node is gone: the context may already be shut down (Ctrl-C), and a
         # destroyed node's logger no longer goes through its rosout publisher.
-        rclpy.logging.get_logger(logger).info(f"closed {self.writer.path}: {total} messages on {len(self.counts)} topics")
+        dropped = ", ".join(f"{topic} {n}" for topic, n in self.rate_dropped.items() if n)
+        rclpy.logging.get_logger(logger).info(f"closed {self.writer.path}: {total} messages on {len(self.counts)} topics"
+                                              + (f"; left out by rate limits: {dropped}" if dropped else ""))
 
 
 def main(args=None):

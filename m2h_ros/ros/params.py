@@ -8,7 +8,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from m2h_ros.config import Config
+from m2h_ros.config import Config, unknown_names
 from m2h_ros.errors import ConfigError
 
 _PARAM_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
@@ -17,6 +17,7 @@ _PARAM_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER
                 tuple[int, ...]: ParameterType.PARAMETER_INTEGER_ARRAY,
                 tuple[float, ...]: ParameterType.PARAMETER_DOUBLE_ARRAY}
 _INT64_MAX = 2**63 - 1
+QOS_OVERRIDES = "qos_overrides."  # rclpy's own per-topic QoS parameters, declared with their endpoints
 
 
 def _descriptor(f: dataclasses.Field, kind: type) -> ParameterDescriptor:
@@ -52,4 +53,12 @@ def declare_config(node: Node, config_type: type[Config]) -> Config:
         except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
             raise ConfigError(f"{config_type.__name__}.{f.name}: {exc}") from exc
         values[f.name] = f.default if value is None else value
+    # rclpy drops a value given for a parameter nobody declares: a mistyped name would run on the default
+    # without a word. (Node keeps the values given to it, -p and params files, only in a private member.)
+    unknown = sorted(name for name in node._parameter_overrides
+                     if not node.has_parameter(name) and not name.startswith(QOS_OVERRIDES))
+    if unknown:
+        known = sorted(node._parameters)
+        raise ConfigError(f"unknown parameter(s) of {node.get_name()}: {unknown_names(unknown, known)}; known: "
+                          f"{', '.join(known)}")
     return config_type.from_dict(values, source=f"parameters of {node.get_name()}")

@@ -3,7 +3,6 @@
 import cProfile
 import os
 import resource
-import signal
 import sys
 import time
 from pathlib import Path
@@ -16,6 +15,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from m2h_ros.allocator import keep_freed_blocks
 from m2h_ros.errors import M2HError
+from m2h_ros.ros import stop_signals
 from m2h_ros.ros.executor import StepExecutor
 
 
@@ -44,11 +44,12 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
     node = None
     code = 0
     try:
-        # SIGTERM raises KeyboardInterrupt, as SIGINT does. rclpy's own SIGTERM handling wakes the executor
-        # before it shuts the context down: an executor that woke in between found the context alive and
-        # waited again, with nothing left to wake it (an idle node hung in 1 of 10 SIGTERMs). rclpy's
-        # handler chains to this one, and its wake-up lets Python run it.
-        signal.signal(signal.SIGTERM, signal.default_int_handler)
+        # SIGTERM raises KeyboardInterrupt, as SIGINT does, once: a later stop signal cannot interrupt the
+        # shutdown (stop_signals says why). rclpy's own SIGTERM handling wakes the executor before it shuts
+        # the context down: an executor that woke in between found the context alive and waited again,
+        # with nothing left to wake it (an idle node hung in 1 of 10 SIGTERMs). rclpy's handler chains to
+        # this one, and its wake-up lets Python run it.
+        stop_signals.install()
         if publish_on_shutdown:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         else:
@@ -81,6 +82,7 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
         if rclpy.ok():
             raise
     finally:
+        stop_signals.closing()  # the run is over, however it ended: nothing may cut the closing short
         if node is not None:
             usage = resource.getrusage(resource.RUSAGE_SELF)
             total = usage.ru_utime + usage.ru_stime

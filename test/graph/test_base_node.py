@@ -3,6 +3,7 @@ closed-loop and reported (done, blocked by a wall, aborted on stale odometry), z
 end and on shutdown, TwistStamped or plain Twist."""
 
 import math
+import signal
 import sys
 import threading
 import time
@@ -128,10 +129,15 @@ def test_stale_odometry_aborts_the_move_and_stops_the_base(graph):
     assert later.status == MotionResult.ABORTED and "no odometry" in later.reason
 
 
-def test_shutdown_mid_move_sends_zero_velocity_on_plain_twist(graph, processes):
+@pytest.mark.parametrize("presses", [1, 5], ids=["ctrl-c", "ctrl-c-repeated"])
+def test_shutdown_mid_move_sends_zero_velocity_on_plain_twist(presses, graph, processes):
+    """Also with Ctrl-C pressed again while the node waits for its zero velocity to be acknowledged."""
     driver, _, node = graph(stamped=False)
     driver.pub.publish(MotionCommand(episode_id="robot", step=0, action=FORWARD, controller="test"))
     driver.wait_for(lambda: any(v > 0.1 for v, _ in driver.twists), 30, "motion")
+    for _ in range(presses - 1):
+        node.send_signal(signal.SIGINT)
+        time.sleep(0.03)
     code, _, err = processes.interrupt(node)
     assert code == 0 and "Traceback" not in err, err
     driver.wait_for(lambda: driver.twists[-1] == (0.0, 0.0), 5, "zero velocity after SIGINT")

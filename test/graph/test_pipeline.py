@@ -27,10 +27,11 @@ CONTROLLER = "random"  # stochastic: the equivalence test then also covers the p
 
 @pytest.fixture(scope="module")
 def tiny_run(small_library, small_data_dir, tmp_path_factory):
-    """One 2-episode run of the whole pipeline on the tiny setup (shared by the checks below)."""
+    """One 2-episode run of the whole pipeline on the tiny setup (shared by the checks below), its bag's
+    chunks zstd-compressed: the replay and the Foxglove checks below read them."""
     out = tmp_path_factory.mktemp("run")
     result = run_pipeline(out, small_data_dir, "--episodes", "2", "--controller", CONTROLLER,
-                          "--set", "controller_node.seed=7", *tiny_sets())
+                          "--set", "controller_node.seed=7", "--compression", "zstd", *tiny_sets())
     assert result.returncode == 0, result.stdout + result.stderr
     return out, result
 
@@ -42,6 +43,7 @@ def test_run_reports_where_everything_is(tiny_run):
     assert f"| {CONTROLLER} | near_target | unheard | 2 |" in result.stdout
     for name in ("results.md", "results.csv", "results.json", "si_sdr_vs_step.png"):
         assert (out / "scores" / name).stat().st_size > 0
+    assert (out / "scores" / "results.md").read_text().startswith("# m2h_ros pipeline run\n")  # whole: not partial
     # The evaluator prints the table itself (under ros2 launch its output is what a user sees)
     assert f"| {CONTROLLER} | near_target | unheard | 2 |" in (out / "logs" / "evaluator_node.log").read_text()
 

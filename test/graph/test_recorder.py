@@ -162,3 +162,50 @@ def test_a_definition_that_differs_from_the_publishers_is_named(processes, tmp_p
     assert "/audio/audio_stamped: the definition" not in log and "/audio/audio: the definition" not in log
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert "/audio/audio_info" in {t["topic_metadata"]["name"] for t in info["topics_with_message_count"]}
+
+
+def test_an_existing_bag_is_named_with_what_each_startup_takes(processes, tmp_path):
+    (tmp_path / "bag").mkdir()
+    recorder = processes.start([ROS2RUN, "m2h_ros", "recorder_node", "--ros-args", "-p", f"output:={tmp_path / 'bag'}"])
+    _, err = recorder.communicate(timeout=60)
+    assert recorder.returncode == 2
+    assert "already exists: choose another output, or replace it with overwrite:=true (ros2 launch)" in err
+    assert "-p overwrite:=true (ros2 run)" in err and "--set recorder_node.overwrite=true" in err
+
+
+def test_topics_exclusions_rate_limits_and_zstd_chunks(processes, tmp_path):
+    """What ros2 bag record offers: only the topics asked for (a pattern), some left out, one at a limited
+    rate; the chunks zstd-compressed, which Foxglove's reader (mcap + mcap-ros2-support), rosbags and this
+    project's own reader (m2h-eval's) all decode."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    bag = tmp_path / "bag"
+    recorder = processes.start([ROS2RUN, "m2h_ros", "recorder_node", "--ros-args", "-p", f"output:={bag}",
+                                "-p", "discovery_period_s:=0.2", "-p", "topics:=[/probe/*]",
+                                "-p", "exclude:=[/probe/AgentPose,/probe/Spectrogram]",
+                                "-p", "max_rate_hz:=[/probe/EpisodeInfo=2]", "-p", "compression:=zstd"])
+    wait_for_line(recorder, "recording to")
+    publisher = processes.start([sys.executable, str(PROBE), "publish"])
+    wait_for_line(recorder, "recording /probe/StepScore")  # the last type the probe advertises
+    started = time.monotonic()
+    time.sleep(3.0)  # 10 Hz per topic
+    code, _, err = processes.interrupt(recorder)
+    recorded_for = time.monotonic() - started
+    processes.interrupt(publisher)
+    assert code == 0, err
+    assert "left out by rate limits: /probe/EpisodeInfo" in err
+    counts: dict[str, int] = {}
+    for item in read_messages(bag):  # rosbags
+        counts[item.topic] = counts.get(item.topic, 0) + 1
+    probes = {f"/probe/{path.stem}" for path in msg_files().values()}
+    assert set(counts) == probes - {"/probe/AgentPose", "/probe/Spectrogram"}  # no /rosout: not asked for
+    assert counts["/probe/StepScore"] >= 20
+    assert 1 <= counts["/probe/EpisodeInfo"] <= 2 * (recorded_for + 1.0) + 1  # 2 Hz of the probe's 10 Hz
+    (mcap,) = bag.glob("*.mcap")
+    with mcap.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        assert {chunk.compression for chunk in reader.get_summary().chunk_indexes} == {"zstd"}
+        decoded = sum(1 for _ in reader.iter_decoded_messages())
+    assert decoded == sum(counts.values())
+    assert sum(1 for _ in BagStream(bag).messages()) == decoded

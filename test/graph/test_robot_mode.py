@@ -7,6 +7,7 @@ images is refused naming why."""
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,13 @@ def check_episode(result, tmp_path, microphones: str) -> dict:
         assert f"[run]   {node:16s} exit 0" in result.stdout
     messages = bag_messages(tmp_path / "run" / "bag")
     assert "/ground_truth/target" not in messages and "/scores/step" not in messages  # no sim, no evaluator
+    # Robot mode's bag leaves out the raw camera streams (each step's images are kept) and compresses its chunks.
+    assert "/camera/rgb/image_raw" not in messages and "/camera/depth/image_raw" not in messages
+    from mcap.reader import make_reader
+
+    (mcap,) = (tmp_path / "run" / "bag").glob("*.mcap")
+    with mcap.open("rb") as stream:
+        assert {chunk.compression for chunk in make_reader(stream).get_summary().chunk_indexes} == {"zstd"}
     steps = [(m.episode_id, m.step) for m in messages["/audio"]]
     assert steps == [("robot", k) for k in range(STEPS + 1)]
     commands = messages["/cmd"]
@@ -91,3 +99,25 @@ def test_without_a_camera_a_controller_that_reads_images_is_refused(tmp_path):
     assert result.returncode == 1
     assert "controller_node exited during the run" in result.stdout
     assert "controller 'move2hear' reads camera images and camera is false" in result.stdout
+
+
+def test_without_odometry_or_camera_the_run_ends_within_its_timeout_naming_them(tmp_path):
+    """No base driver and no camera: the episode driver stops after input_timeout_s, naming each input
+    that never came, instead of waiting for them for ever."""
+    started = time.monotonic()
+    result = mic_run(tmp_path, "--set", "episode_driver.input_timeout_s=5", timeout=180)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert f"[run]   {'episode_driver':16s} exit 2" in result.stdout, result.stdout
+    assert ("step 0: no odometry on /odom; no camera images on /camera/rgb/image_raw, /camera/depth/image_raw "
+            "within 5 s (input_timeout_s)") in result.stdout
+    assert "microphone frames" not in result.stdout  # the microphone worked
+    assert time.monotonic() - started < 120
+
+
+def test_without_any_robot_input_the_run_ends_naming_the_microphone_too(tmp_path):
+    """An audio_common stream that never comes (no driver), no base, no camera."""
+    result = robot_run(tmp_path, "--microphones", "audio_common", "--set", "episode_driver.input_timeout_s=5",
+                       timeout=180)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert ("step 0: no microphone frames on /mic/audio; no odometry on /odom; no camera images on "
+            "/camera/rgb/image_raw, /camera/depth/image_raw within 5 s (input_timeout_s)") in result.stdout

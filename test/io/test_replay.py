@@ -381,3 +381,13 @@ def test_a_damaged_first_chunk_costs_only_its_own_messages(tmp_path):
     assert not any("declaration was lost" in str(p) for p in replay.problems)
     assert live[-1].episode_id in {r.episode_id for r in replay.results}
     same_results([r for r in replay.results if r.episode_id == live[-1].episode_id], live[-1:])
+
+
+def test_help_lists_the_exit_codes(capsys):
+    with pytest.raises(SystemExit) as exited:
+        m2h_eval(["--help"])
+    assert exited.value.code == 0
+    help_text = " ".join(capsys.readouterr().out.split())
+    for code in ("0 all scored and equal to the live scores", "1 a live score differs beyond --atol",
+                 "3 a bag is damaged or foreign", "2 bad options"):
+        assert code in help_text

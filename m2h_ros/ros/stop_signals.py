@@ -1,0 +1,64 @@
+"""One stop per process: the first SIGINT or SIGTERM stops it, every later one is ignored.
+
+A terminal's Ctrl-C goes to the whole process group, so under ``ros2 launch`` each node gets SIGINT
+twice (from the terminal and from launch forwarding it), and a held Ctrl-C sends it again and again. A
+second KeyboardInterrupt landing in a node's shutdown interrupted it: no bag footer, no tables, no last
+zero velocity, exit code -2. Once a stop has begun (or the node's work is done and it is closing), the
+process finishes closing its outputs; ``ros2 launch``'s SIGTERM 5 s later is ignored as well, and only its
+SIGKILL 5 s after that could cut the shutdown short.
+
+ROS-free and cheap to import: the nodes' entry points install the handler before importing anything.
+"""
+
+import ctypes
+import os
+import signal
+from collections.abc import Callable
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# Set by the launch files to the launch process's id: a node it starts stops when that process dies.
+PARENT_ENV = "M2H_STOP_WITH_PARENT"
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_stopping = False
+
+
+def stop_once(signum, frame) -> None:
+    """The handler of SIGINT and SIGTERM: KeyboardInterrupt the first time, nothing afterwards."""
+    global _stopping
+    if not _stopping:
+        _stopping = True
+        raise KeyboardInterrupt
+
+
+def install() -> None:
+    """:func:`stop_once` for SIGINT and SIGTERM (SIGTERM stops as Ctrl-C does). Also where SIGINT was
+    inherited ignored (a background job of a non-interactive shell): a node must still stop on it."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, stop_once)
+
+
+def closing() -> None:
+    """The process is closing its outputs: a stop signal from now on is ignored."""
+    global _stopping
+    _stopping = True
+
+
+def ignore() -> None:
+    """SIGINT and SIGTERM ignored from now on, for a process about to end that has no rclpy context:
+    Python's finalisation puts back the default handlers, and a late Ctrl-C would kill it (exit -2)."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+
+
+def stop_with(parent: int) -> Callable[[], None]:
+    """What makes a process get SIGTERM (and so stop as on Ctrl-C) when ``parent`` dies, however it dies
+    (SIGKILL, an out-of-memory kill): call it in the process itself, or pass it as a child's
+    ``preexec_fn``. A process whose parent dies first gets SIGTERM at once."""
+    prctl = ctypes.CDLL(None).prctl  # looked up here: the child of a fork should only call it
+
+    def set_parent_death_signal() -> None:
+        prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != parent:  # died before the line above took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return set_parent_death_signal
