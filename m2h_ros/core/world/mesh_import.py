@@ -467,11 +467,7 @@ def read_material_map(path: str | Path) -> dict[str, str]:
                                                  for k, v in document.items()):
         raise ConfigError(f"material map {path} must map part names (fnmatch patterns allowed) to acoustic "
                           "material names, one 'pattern: material' per line, e.g. '\"Wall*\": brickwork'")
-    unknown = sorted({name for name in document.values() if not _is_acoustic_material(name)})
-    if unknown:
-        raise ConfigError(f"material map {path} names unknown acoustic material(s): "
-                          f"{'; '.join(_with_suggestion(name) for name in unknown)} "
-                          "(names are pyroomacoustics database entries, e.g. plasterboard, brickwork, carpet_thin)")
+    check_materials(document.values(), where=f"material map {path}")
     return document
 
 
@@ -485,6 +481,14 @@ def material_for(part: str | None, mapping: dict[str, str], default: str) -> str
     name = part.lower()
     return next((material for pattern, material in mapping.items() if fnmatch.fnmatchcase(name, pattern.lower())),
                 default)
+
+
+def check_materials(names, *, where: str) -> None:
+    """ConfigError naming every name that is not an acoustic material (with the nearest that is)."""
+    unknown = sorted({str(name) for name in names if not _is_acoustic_material(name)})
+    if unknown:
+        raise ConfigError(f"{where} names unknown acoustic material(s): {'; '.join(map(_with_suggestion, unknown))} "
+                          "(names are pyroomacoustics database entries, e.g. plasterboard, brickwork, carpet_thin)")
 
 
 def _is_acoustic_material(name: str) -> bool:

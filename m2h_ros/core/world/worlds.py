@@ -264,15 +264,12 @@ def read_world_file(path: Path, *, kind: str) -> WorldFile:
             raise ConfigError(f"world file {path}: room {number}'s polygon needs at least 3 [x, y] corners")
         specs.append(RoomSpec(**{**room, "polygon": polygon}))
     # The acoustics look materials up only when they run: name a misspelt one now, with this file.
-    from m2h_ros.core.world.mesh_import import _is_acoustic_material, _with_suggestion
+    from m2h_ros.core.world.mesh_import import check_materials
 
     named = [value for key, value in plan.items() if key.endswith("_material")]
     named += [value for spec in specs for value in (spec.wall_material, spec.floor_material, spec.ceiling_material)
               if value]
-    unknown = sorted({str(name) for name in named if not _is_acoustic_material(name)})
-    if unknown:
-        raise ConfigError(f"world file {path}: unknown acoustic material(s) {'; '.join(map(_with_suggestion, unknown))}"
-                          f" (names are pyroomacoustics database entries, e.g. plasterboard, brickwork, carpet_thin)")
+    check_materials(named, where=f"world file {path}")
     try:
         plan_settings = PlanSettings(**plan, rooms=tuple(specs))
         mesh = {k: v for k, v in document.items() if k in _MESH_KEYS}

@@ -155,8 +155,8 @@ def test_rooms_given_as_a_label_image_split_a_room(tmp_path):
 @pytest.mark.parametrize("settings, message", [
     ({"wall_heigth": 3.0}, r"unknown setting 'wall_heigth' \(did you mean 'wall_height'\?\)"),
     ({"units": "cm"}, r"unknown setting 'units'"),  # a mesh's setting, not a map's
-    ({"wall_material": "plasterbord"}, r"unknown acoustic material\(s\) 'plasterbord' \(did you mean 'plasterboard'"),
-    ({"rooms": [{"name": "a", "ceiling_material": "cloud"}]}, r"unknown acoustic material\(s\) 'cloud'"),
+    ({"wall_material": "plasterbord"}, r"unknown acoustic material\(s\): 'plasterbord' \(did you mean 'plasterboard'"),
+    ({"rooms": [{"name": "a", "ceiling_material": "cloud"}]}, r"unknown acoustic material\(s\): 'cloud'"),
     ({"furnishing": "palace"}, r"furnishing 'palace' is unknown; choose one of"),
     ({"rooms": [{"name": "a", "furnishing": "palace"}]}, r"furnishing 'palace' is unknown"),
     ({"rooms": [{"nmae": "a"}]}, r"room 0 has unknown setting 'nmae' \(did you mean 'name'\?\)"),
