@@ -40,14 +40,15 @@ def compute_sources(scene: Any, config: AcousticsConfig, nodes: Sequence[int],
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"workers must be an integer >= 1, got {workers!r}")
     nodes = [int(node) for node in nodes]
+    if not nodes:  # nothing missing: no pool, no Ray start
+        return
     if ray_address is not None:
         results = _on_ray(scene, config, nodes, workers=workers, address=ray_address)
     elif workers > 1 and len(nodes) > 1:
         results = _in_processes(scene, config, nodes, workers=workers)
     else:
         results = ((node, simulate_source(scene, node, config)) for node in nodes)
-    with closing(results), tqdm(total=len(nodes), desc=desc, unit="src",
-                                disable=not (progress and nodes)) as bar:
+    with closing(results), tqdm(total=len(nodes), desc=desc, unit="src", disable=not progress) as bar:
         for node, rows in results:
             store(node, rows)
             bar.update()
