@@ -168,6 +168,14 @@ class _PoseCache:
         self._entries.clear()
 
 
+POPULATE_LIMIT_BYTES = 1 << 30  # a bank up to this is mapped whole by prepare()
+
+
+def _bank_bytes(bank: RirBank) -> int:
+    """What a whole bank takes: source nodes x receivers x row of samples."""
+    return bank.n_nodes ** 2 * bank.config.row_length * np.dtype(bank.config.storage_dtype).itemsize
+
+
 def _scene_key(episode: Episode) -> tuple[str, str, int]:
     return episode.scene_split, episode.scene_preset, episode.scene_index
 
@@ -406,11 +414,13 @@ class BatchEnv:
         """Build every RIR bank (and the stored RIR spectra, if used) and render every camera view of
         the episodes' scenes now (before timing, or before forking workers that would otherwise each
         fill their own caches), and map the pages of the files the renders read into this process and
-        the render processes (no page faults inside steps)."""
+        the render processes (no page faults inside steps) where they fit POPULATE_LIMIT_BYTES: a large
+        building's bank (139 nodes: 3.2 GiB) stays mapped on demand, its memory what the episodes touch."""
         keys = sorted({_scene_key(e) for e in self.episodes})
         for key in keys:
             data = self._scene_data(key)
-            data.bank.build(workers=workers, progress=progress, populate_pages=data.spectra is None)
+            populate = data.spectra is None and _bank_bytes(data.bank) <= POPULATE_LIMIT_BYTES
+            data.bank.build(workers=workers, progress=progress, populate_pages=populate)
             if data.spectra is not None:
                 data.spectra.build(populate_pages=True)
             if data.views is not None:

@@ -342,7 +342,8 @@ def _room_rings(mask: np.ndarray, labels: np.ndarray, label: int, plan: Occupanc
 
     padded = np.pad(mask, 1).astype(np.float32)
     padded_labels = np.pad(labels, 1)
-    tolerance = settings.wall_tolerance / plan.resolution
+    # At least 1.5 cells: a coarser raster's one-cell steps are not walls (a ragged map would give hundreds).
+    tolerance = max(settings.wall_tolerance / plan.resolution, 1.5)
     rings = []
     for contour in find_contours(padded, 0.5):
         if len(contour) < 4:
