@@ -57,7 +57,8 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
         # Built before the node, so a Ctrl-C right after the node says "ready" cannot land inside
         # the executor's constructor (that leaves a half-built executor whose __del__ raises).
         executor = StepExecutor()
-        node = node_type()
+        with stop_signals.deferred():  # a stop is taken once the node exists: it then closes what it opened
+            node = node_type()
         if not rclpy.ok():  # a Ctrl-C while the node was being built shut the context down: nothing to spin
             raise KeyboardInterrupt
         profile_dir = os.environ.get("M2H_PROFILE_DIR")

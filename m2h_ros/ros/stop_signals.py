@@ -13,21 +13,41 @@ ROS-free and cheap to import: the nodes' entry points install the handler before
 import ctypes
 import os
 import signal
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # Set by the launch files to the launch process's id: a node it starts stops when that process dies.
 PARENT_ENV = "M2H_STOP_WITH_PARENT"
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 _stopping = False
+_deferring = False  # inside deferred(): a stop is noted, not raised
+_pending = False    # a stop came while deferring
 
 
 def stop_once(signum, frame) -> None:
     """The handler of SIGINT and SIGTERM: KeyboardInterrupt the first time, nothing afterwards."""
-    global _stopping
-    if not _stopping:
+    global _stopping, _pending
+    if _deferring:
+        _pending = True
+    elif not _stopping:
         _stopping = True
         raise KeyboardInterrupt
+
+
+@contextmanager
+def deferred() -> Iterator[None]:
+    """A stop signal that comes while the block runs is raised (KeyboardInterrupt) when it ends: a node's
+    constructor interrupted after it opened an output (the recorder's bag) left no node to close it."""
+    global _deferring, _pending
+    _deferring = True
+    try:
+        yield
+    finally:
+        _deferring = False
+    if _pending:
+        _pending = False
+        stop_once(None, None)
 
 
 def install() -> None:
