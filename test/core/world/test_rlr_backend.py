@@ -1,0 +1,146 @@
+"""The rlr acoustics backend (RLRAudioPropagation): bank layout, rate and keys, interaural cues, materials,
+backend separation, and the clear error where the opt-in package is not installed."""
+
+import sys
+
+import numpy as np
+import pytest
+
+from m2h_ros.core.sounds.sources import sources_dir
+from m2h_ros.core.world import rlr_backend
+from m2h_ros.core.world.acoustics import (
+    BAND_CENTRES,
+    AcousticsConfig,
+    assemble,
+    measure_rt60,
+    octave_band,
+    room_rt60,
+    simulate_source,
+)
+from m2h_ros.core.world.rir_bank import RirBank, bank_dir
+from m2h_ros.core.world.scene import build_scene
+from m2h_ros.errors import M2HError
+
+FS = 16000
+C = 343.0
+SHORT = dict(rir_length=0.5, early_length=0.064, rlr_rays=500)
+installed = pytest.mark.skipif(not rlr_backend.available(),
+                               reason="rlr-audio-propagation is not installed (opt-in, CC-BY-NC 4.0: "
+                                      "scripts/setup.sh --with-rlr; scripts/test.sh installs it)")
+
+
+def _room(wall: str, floor: str = "carpet_cotton", ceiling: str = "ceiling_plasterboard"):
+    """One 4 m x 3 m room (12 nodes at the cell centres), 2.5 m high as every generated scene."""
+    return build_scene(np.zeros((4, 3), dtype=int), surfaces=[(wall, floor, ceiling, (1.0, 0.0, 0.0))])
+
+
+def _node(scene, xy) -> int:
+    return int(np.flatnonzero((scene.grid.positions == np.asarray(xy)).all(axis=1))[0])
+
+
+def _onset(rir: np.ndarray) -> int:
+    """First sample where either ear reaches 20 % of the response's peak."""
+    envelope = np.abs(rir).max(axis=0)
+    return int(np.argmax(envelope >= 0.2 * envelope.max()))
+
+
+def _direct_cues(rir: np.ndarray) -> tuple[float, float]:
+    """(ITD s, ILD dB) of the direct sound: positive when it reaches the left ear first / louder."""
+    start = _onset(rir)
+    direct = rir[:, start - 4: start + 40].astype(np.float64)  # before the first reflection
+    ild = 10 * np.log10((direct[0] ** 2).sum() / (direct[1] ** 2).sum())
+    xcorr = np.correlate(np.repeat(direct[1], 8), np.repeat(direct[0], 8), mode="full")
+    return (np.argmax(xcorr) - (8 * direct.shape[1] - 1)) / (8 * FS), ild
+
+
+@pytest.fixture()
+def data_root(tmp_path, monkeypatch):
+    (tmp_path / "sound_sources").symlink_to(sources_dir())  # the KEMAR SOFA file stays where setup put it
+    monkeypatch.setenv("M2H_DATA_DIR", str(tmp_path))
+    return tmp_path
+
+
+@pytest.fixture(scope="module")
+def room_rows():
+    scene = _room("plasterboard")
+    config = AcousticsConfig(backend="rlr", **SHORT)
+    return scene, config, simulate_source(scene, _node(scene, (2.5, 1.5)), config)
+
+
+def test_missing_package_is_an_error_naming_the_install_step_and_licence(monkeypatch):
+    monkeypatch.setitem(sys.modules, "rlr_audio_propagation", None)  # an import of it now fails
+    with pytest.raises(M2HError, match=r"setup\.sh --with-rlr.*") as caught:
+        AcousticsConfig(backend="rlr")
+    assert "CC-BY-NC 4.0" in str(caught.value)
+
+
+def test_project_key_does_not_depend_on_rlr_settings():
+    project = AcousticsConfig()
+    assert project.digest() == AcousticsConfig(rlr_rays=17, rlr_threads=2).digest()
+
+
+@installed
+def test_rows_have_the_banks_shape_rate_and_keys(room_rows):
+    scene, config, rows = room_rows
+    assert rows.shape == (len(scene.grid.positions), config.row_length)
+    assert rows.dtype == np.dtype(config.storage_dtype)
+    assert np.isfinite(rows.astype(np.float32)).all()
+    # Rate: the direct sound 2 m away arrives 2 m / c later, in samples of config.sample_rate.
+    rir = assemble(rows[[_node(scene, (0.5, 1.5))]], np.array([0]), config)[0]
+    assert rir.shape == (2, config.n_taps)
+    assert abs(_onset(rir) - 2.0 / C * FS) <= 3
+    # Headings differ in the early part only; the late part is shared.
+    turned = assemble(rows[[_node(scene, (0.5, 1.5))]], np.array([1]), config)[0]
+    assert not np.allclose(rir[:, :config.n_early], turned[:, :config.n_early])
+    assert np.array_equal(rir[:, config.n_early:], turned[:, config.n_early:])
+    # Keys: the backend and its settings change the digest; threads (speed only) do not.
+    assert config.digest() != AcousticsConfig(**{**SHORT, "rlr_rays": 500}).digest()
+    assert config.digest() != AcousticsConfig(backend="rlr", **{**SHORT, "rlr_rays": 400}).digest()
+    assert config.digest() == AcousticsConfig(backend="rlr", rlr_threads=2, **SHORT).digest()
+
+
+@installed
+def test_source_ahead_reaches_both_ears_together_and_left_reaches_left_ear_first_and_louder(room_rows):
+    scene, config, rows = room_rows
+    receiver = rows[[_node(scene, (0.5, 1.5))]]  # the source at (2.5, 1.5) is 2 m along +x
+    ahead = assemble(receiver, np.array([0]), config)[0]  # facing +x
+    left = assemble(receiver, np.array([3]), config)[0]  # facing -y: +x is on the left
+    right = assemble(receiver, np.array([1]), config)[0]  # facing +y: +x is on the right
+    itd, ild = _direct_cues(ahead)
+    assert abs(itd) < 0.05e-3 and abs(ild) < 1.0
+    itd, ild = _direct_cues(left)
+    assert 0.3e-3 < itd < 0.85e-3 and ild > 3.0
+    itd, ild = _direct_cues(right)
+    assert -0.85e-3 < itd < -0.3e-3 and ild < -3.0
+
+
+@installed
+def test_more_absorbent_material_shortens_the_decay():
+    config = AcousticsConfig(backend="rlr", rir_length=1.0, early_length=0.064, rlr_rays=1000)
+    decays = {}
+    for wall in ("hard_surface", "panel_fabric_covered_6pcf"):
+        scene = _room(wall, floor="hard_surface", ceiling="hard_surface")
+        rows = simulate_source(scene, _node(scene, (0.5, 0.5)), config)
+        rir = assemble(rows[[_node(scene, (3.5, 2.5))]], np.array([0]), config)[0].astype(np.float64)
+        decays[wall] = measure_rt60(octave_band(rir[0], 1000.0, FS), FS)
+        if wall == "hard_surface":
+            # Reverberant enough to compare with the project's Eyring formula on the same faces.
+            assert decays[wall] == pytest.approx(room_rt60(scene, 0)[list(BAND_CENTRES).index(1000.0)], rel=0.5)
+    assert decays["panel_fabric_covered_6pcf"] < 0.6 * decays["hard_surface"]
+
+
+@installed
+def test_a_bank_of_one_backend_is_never_read_for_the_other(data_root):
+    scene = _room("plasterboard")
+    project = AcousticsConfig(rir_length=0.5, early_length=0.064, ism_max_order=1, tail=False)
+    rlr = AcousticsConfig(backend="rlr", rir_length=0.5, early_length=0.064, ism_max_order=1, tail=False,
+                          rlr_rays=200)
+    assert bank_dir(scene, project) != bank_dir(scene, rlr)
+    project_bank = RirBank(scene, project, progress=False)
+    from_project = project_bank.rirs([0], [5], [0])
+    rlr_bank = RirBank(scene, rlr, progress=False)
+    assert rlr_bank.missing() == list(range(len(scene.grid.positions)))  # nothing of the project's is seen
+    from_rlr = rlr_bank.rirs([0], [5], [0])
+    assert rlr_bank.path(0).exists() and project_bank.path(0).exists() and rlr_bank.path(0) != project_bank.path(0)
+    assert not np.allclose(from_project, from_rlr)
+    assert np.array_equal(RirBank(scene, project, progress=False).rirs([0], [5], [0]), from_project)
