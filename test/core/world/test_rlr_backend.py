@@ -11,14 +11,19 @@ from m2h_ros.core.world import rlr_backend
 from m2h_ros.core.world.acoustics import (
     BAND_CENTRES,
     AcousticsConfig,
+    _effective_faces,
+    _face_area,
     assemble,
     measure_rt60,
     octave_band,
+    receiver_positions,
     room_rt60,
     simulate_source,
 )
 from m2h_ros.core.world.rir_bank import RirBank, bank_dir
 from m2h_ros.core.world.scene import build_scene
+from m2h_ros.core.world.worlds import load_world
+from m2h_ros.paths import REPO_DIR
 from m2h_ros.errors import M2HError
 
 FS = 16000
@@ -144,3 +149,31 @@ def test_a_bank_of_one_backend_is_never_read_for_the_other(data_root):
     assert rlr_bank.path(0).exists() and project_bank.path(0).exists() and rlr_bank.path(0) != project_bank.path(0)
     assert not np.allclose(from_project, from_rlr)
     assert np.array_equal(RirBank(scene, project, progress=False).rirs([0], [5], [0]), from_project)
+
+
+def test_every_face_of_an_imported_world_is_triangulated_whole_with_its_own_material():
+    scene = load_world(f"map:{REPO_DIR / 'docs' / 'worlds' / 'apartment' / 'map.yaml'}")
+    faces = _effective_faces(scene)
+    vertices, parts, materials = rlr_backend.scene_geometry(scene, AcousticsConfig())
+    triangles = np.vstack(list(parts.values()))
+    edges = vertices[triangles[:, 1:]] - vertices[triangles[:, :1]]
+    area = 0.5 * np.linalg.norm(np.cross(edges[:, 0], edges[:, 1]), axis=-1).sum()
+    assert area == pytest.approx(sum(_face_area(np.asarray(corners)) for _, corners, _, _ in faces), rel=1e-6)
+    assert len(materials) == len({tuple(np.round(a, 6)) for *_, a in faces}) == len(parts)
+    absorption = sorted(tuple(float(v) for v in np.round(m["absorption"][1::2], 6)) for m in materials)
+    assert absorption == sorted({tuple(float(v) for v in np.round(a, 6)) for *_, a in faces})
+
+
+@installed
+def test_an_imported_world_renders_with_the_direct_sound_at_distance_over_c(data_root):
+    scene = load_world(f"map:{REPO_DIR / 'docs' / 'worlds' / 'apartment' / 'map.yaml'}")
+    config = AcousticsConfig(backend="rlr", **SHORT)
+    points = receiver_positions(scene, config)
+    source = 0
+    same_room = np.flatnonzero((scene.grid.room_of == scene.grid.room_of[source])
+                               & (np.linalg.norm(points - points[source], axis=1) >= 1.0))[:2]
+    rirs = rlr_backend.render(scene, points[source], points[same_room], config)
+    assert rirs.shape == (len(same_room), 4, 2, config.n_taps) and np.isfinite(rirs).all()
+    for rir, receiver in zip(rirs[:, 0], same_room):
+        distance = np.linalg.norm(points[receiver] - points[source])
+        assert abs(_onset(rir) - distance / C * FS) <= 3
