@@ -69,6 +69,10 @@ class SimConfig(Config):
     def __post_init__(self) -> None:
         super().__post_init__()
         parse_head(self.head)
+        if self.acoustics_backend == "rlr":
+            from m2h_ros.core.world import rlr_backend
+
+            rlr_backend.require()  # before any node starts: the opt-in install step and the licence
         if self.world:
             parse_world_spec(self.world)
         unknown = sorted(set(self.expect_nodes) - set(PIPELINE_NODES))

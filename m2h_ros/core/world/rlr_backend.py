@@ -4,7 +4,7 @@ unchanged (``AcousticsConfig.backend = "rlr"``).
 
 Opt-in: the package ``rlr-audio-propagation`` is licensed CC-BY-NC 4.0 (non-commercial use only), so the
 default set-up never installs it; ``scripts/setup.sh --with-rlr`` does (and ``scripts/test.sh``, so that
-its tests run in CI). Without it, choosing the backend is an ``M2HError`` naming both.
+its tests run in CI). Without it, choosing the backend is a ``ConfigError`` naming both.
 
 What the engine is given, the same world as the project's engine:
 
@@ -53,7 +53,7 @@ from m2h_ros.core.world.acoustics import (
     receiver_positions,
 )
 from m2h_ros.core.world.hrtf import head_identity, load_head
-from m2h_ros.errors import ConfigError, M2HError
+from m2h_ros.errors import ConfigError
 from m2h_ros.paths import data_dir
 
 #: Bump whenever a change in this module changes the numbers in an RLR bank (part of the digest).
@@ -68,18 +68,18 @@ FREQUENCY_BANDS = 8  # RLR's log-spaced simulation bands (4 or 8 recommended; 8 
 
 
 def require() -> Any:
-    """The ``rlr_audio_propagation`` module, or an M2HError naming the install step and the licence."""
+    """The ``rlr_audio_propagation`` module, or a ConfigError naming the install step and the licence."""
     try:
         import rlr_audio_propagation
     except ImportError as err:
-        raise M2HError(INSTALL_HINT) from err
+        raise ConfigError(INSTALL_HINT) from err
     return rlr_audio_propagation
 
 
 def available() -> bool:
     try:
         require()
-    except M2HError:
+    except ConfigError:
         return False
     return True
 

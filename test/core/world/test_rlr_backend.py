@@ -24,7 +24,9 @@ from m2h_ros.core.world.rir_bank import RirBank, bank_dir
 from m2h_ros.core.world.scene import build_scene
 from m2h_ros.core.world.worlds import load_world
 from m2h_ros.paths import REPO_DIR
-from m2h_ros.errors import M2HError
+from m2h_ros.errors import ConfigError
+from m2h_ros.node_configs import SimConfig
+from m2h_ros.sim_world import env_config
 
 FS = 16000
 C = 343.0
@@ -72,11 +74,19 @@ def room_rows():
     return scene, config, simulate_source(scene, _node(scene, (2.5, 1.5)), config)
 
 
-def test_missing_package_is_an_error_naming_the_install_step_and_licence(monkeypatch):
+@pytest.mark.parametrize("choose", [lambda: AcousticsConfig(backend="rlr"),
+                                    lambda: SimConfig(acoustics_backend="rlr")], ids=["acoustics", "sim_node"])
+def test_missing_package_is_an_error_naming_the_install_step_and_licence(monkeypatch, choose):
     monkeypatch.setitem(sys.modules, "rlr_audio_propagation", None)  # an import of it now fails
-    with pytest.raises(M2HError, match=r"setup\.sh --with-rlr.*") as caught:
-        AcousticsConfig(backend="rlr")
+    with pytest.raises(ConfigError, match=r"setup\.sh --with-rlr") as caught:
+        choose()
     assert "CC-BY-NC 4.0" in str(caught.value)
+
+
+@installed
+def test_the_sim_nodes_backend_reaches_its_acoustics():
+    assert env_config(SimConfig(acoustics_backend="rlr", acoustics="fast")).acoustics.backend == "rlr"
+    assert env_config(SimConfig()).acoustics == AcousticsConfig()
 
 
 def test_project_key_does_not_depend_on_rlr_settings():
