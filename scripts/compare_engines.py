@@ -12,7 +12,7 @@ source and receiver pairs (heading 0, both ears), with the project's own measure
     python scripts/compare_engines.py --out docs/results/engines [--world test:0] [--sources 2] [--receivers 6]
 
 Writes pairs.csv (one row per pair and engine) and summary.md (medians per engine and of the paired
-differences, with the command); prints the summary.
+differences, over all pairs, the pairs within one room and those across rooms, with the command); prints it.
 """
 
 from __future__ import annotations
@@ -93,6 +93,8 @@ def pairs(scene, config: AcousticsConfig, *, sources: int, receivers: int, min_d
 def summary(rows: list[dict], keys: list[str]) -> str:
     by = {b: {(r["source"], r["receiver"]): r for r in rows if r["backend"] == b} for b in BACKENDS}
     common = sorted(set(by["project"]) & set(by["rlr"]))
+    if not common:
+        return "No such pairs.\n"
     lines = ["| measure | project (median) | rlr (median) | rlr - project, paired (median [IQR]) |",
              "| --- | --- | --- | --- |"]
     for key in keys:
@@ -128,18 +130,23 @@ def main(argv: list[str] | None = None) -> int:
             bank_rows = simulate_source(scene, source, config)
             rirs = assemble(np.asarray(bank_rows[receivers]), np.zeros(len(receivers), int), config)
             for receiver, rir in zip(receivers, rirs):
-                rows.append({"backend": backend, "source": source, "receiver": int(receiver),
+                same_room = bool(scene.grid.room_of[receiver] == scene.grid.room_of[source])
+                rows.append({"backend": backend, "source": source, "receiver": int(receiver), "same_room": same_room,
                              **measures(rir.astype(np.float64), config.sample_rate)})
         seconds[backend] = time.perf_counter() - start
         print(f"{backend}: {seconds[backend]:.0f} s for {args.sources} source nodes", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    keys = [k for k in rows[0] if k not in ("backend", "source", "receiver")]
+    keys = [k for k in rows[0] if k not in ("backend", "source", "receiver", "same_room")]
+    tables = (f"All pairs:\n\n{summary(rows, keys)}\nSource and receiver in the same room (a line of sight):\n\n"
+              f"{summary([r for r in rows if r['same_room']], keys)}\nIn different rooms (through doors and walls):"
+              f"\n\n{summary([r for r in rows if not r['same_room']], keys)}")
     with open(args.out / "pairs.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows({k: (f"{v:.5g}" if isinstance(v, float) else v) for k, v in row.items()} for row in rows)
     command = "python scripts/compare_engines.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    text = (f"# The two engines side by side: scene {scene.scene_id}\n\n`{command}`\n\n{summary(rows, keys)}\n"
+    text = (f"# The two engines side by side: scene {scene.scene_id}\n\n`{command}`\n\n"
+            f"Date: {time.strftime('%Y-%m-%d')}\n\n{tables}\n"
             f"Wall time of the renders: " + ", ".join(f"{b} {s:.0f} s" for b, s in seconds.items()) + ".\n")
     (args.out / "summary.md").write_text(text)
     print(text)
