@@ -89,6 +89,15 @@ def test_the_sim_nodes_backend_reaches_its_acoustics():
     assert env_config(SimConfig()).acoustics == AcousticsConfig()
 
 
+def test_backend_settings_are_validated():
+    with pytest.raises(ConfigError, match="backend"):
+        AcousticsConfig(backend="pyroom")
+    with pytest.raises(ConfigError, match="rlr_rays"):
+        AcousticsConfig(rlr_rays=0)
+    with pytest.raises(ConfigError, match="rlr_threads"):
+        AcousticsConfig(rlr_threads=1.5)
+
+
 def test_project_key_does_not_depend_on_rlr_settings():
     project = AcousticsConfig()
     assert project.digest() == AcousticsConfig(rlr_rays=17, rlr_threads=2).digest()
