@@ -9,7 +9,7 @@ source and receiver pairs (heading 0, both ears), with the project's own measure
 * C50: energy in the 50 ms after the onset over the energy after, dB
 * ITD (ms, positive: left ear first; the direct sound's cross-correlation) and ILD (dB, left over right)
 
-    python scripts/compare_engines.py --out docs/results/engines [--world test:0] [--sources 2] [--receivers 6]
+    python scripts/compare_engines.py --out docs/results/engines [--world test:0|map:PATH/map.yaml] [--sources 2]
 
 Writes pairs.csv (one row per pair and engine) and summary.md (medians per engine and of the paired
 differences, over all pairs, the pairs within one room and those across rooms, with the command); prints it.
@@ -36,6 +36,7 @@ from m2h_ros.core.world.acoustics import (
     simulate_source,
 )
 from m2h_ros.core.world.scene import SCENE_SPLITS, load_split
+from m2h_ros.core.world.worlds import is_world_spec, load_world
 from m2h_ros.errors import ConfigError, reports_errors
 
 BANDS = BAND_CENTRES[BAND_CENTRES <= 4000]  # 8 kHz is the Nyquist frequency at 16 kHz
@@ -111,16 +112,21 @@ def summary(rows: list[dict], keys: list[str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="results folder to write")
-    parser.add_argument("--world", default="test:0", help="SPLIT:INDEX of a generated scene (default test:0)")
+    parser.add_argument("--world", default="test:0", help="SPLIT:INDEX of a generated scene (default test:0), "
+                        "or an imported world: map:PATH/map.yaml, mesh:PATH")
     parser.add_argument("--sources", type=int, default=2)
     parser.add_argument("--receivers", type=int, default=6, help="receivers per source")
     parser.add_argument("--min-distance", type=float, default=1.5, help="m between source and receiver")
     parser.add_argument("--threads", type=int, default=1, help="the rlr engine's threads")
     args = parser.parse_args(argv)
     split, _, index = args.world.partition(":")
-    if split not in SCENE_SPLITS or not index.isdigit():
-        raise ConfigError(f"--world {args.world!r} must be SPLIT:INDEX with SPLIT one of {sorted(SCENE_SPLITS)}")
-    scene = load_split(split)[int(index)]
+    if is_world_spec(args.world):
+        scene = load_world(args.world)
+    elif split in SCENE_SPLITS and index.isdigit():
+        scene = load_split(split)[int(index)]
+    else:
+        raise ConfigError(f"--world {args.world!r} must be SPLIT:INDEX with SPLIT one of {sorted(SCENE_SPLITS)}, "
+                          f"map:PATH/map.yaml or mesh:PATH")
     rows, seconds = [], {}
     for backend in BACKENDS:
         config = AcousticsConfig(backend=backend, rlr_threads=args.threads)
