@@ -8,6 +8,7 @@ from m2h_ros import topics
 from m2h_ros.config import DEVICES, Config, setting
 from m2h_ros.core.audio.stft import AUDIO_OUTPUTS
 from m2h_ros.core.robot.base_motion import MotionLimits
+from m2h_ros.core.world.acoustics import BACKENDS
 from m2h_ros.core.world.hrtf import parse_head
 from m2h_ros.core.world.worlds import parse_world_spec
 from m2h_ros.errors import ConfigError
@@ -68,12 +69,19 @@ class SimConfig(Config):
                              "for tests and quick looks only", choices=("default", "fast"))
     head: str = setting("kemar", "the head the ears are simulated with: kemar, sofa:PATH (a SOFA HRIR "
                         "file with two receivers) or free_field:SPACING_M (two microphones, no head)")
+    acoustics_backend: str = setting("project", "the engine of the RIR banks: project (its own) or rlr "
+                                     "(RLRAudioPropagation: opt-in, CC-BY-NC 4.0, scripts/setup.sh --with-rlr)",
+                                     choices=BACKENDS)
     camera: bool = setting(True, "render and publish RGB-D images")
     camera_size: int = setting(128, "width and height of the RGB and depth images", min=16, max=1024)
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_file(self, "head", parse_head(self.head).path, "a SOFA HRIR file")
+        if self.acoustics_backend == "rlr":
+            from m2h_ros.core.world import rlr_backend
+
+            rlr_backend.require()  # before any node starts: the opt-in install step and the licence
         if self.world:
             parse_world_spec(self.world)  # names a missing map or mesh before anything starts
         unknown = sorted(set(self.expect_nodes) - set(PIPELINE_NODES))

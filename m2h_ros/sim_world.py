@@ -78,4 +78,5 @@ def sim_episodes(config: SimConfig, library: SoundLibrary) -> list[Episode]:
 def env_config(config: SimConfig) -> EnvConfig:
     return EnvConfig(mic_noise=config.mic_noise, camera=config.camera,
                      camera_config=CameraConfig(width=config.camera_size, height=config.camera_size),
-                     acoustics=dataclasses.replace(ACOUSTICS_PRESETS[config.acoustics], head=config.head))
+                     acoustics=dataclasses.replace(ACOUSTICS_PRESETS[config.acoustics], head=config.head,
+                                                   backend=config.acoustics_backend))

@@ -16,7 +16,7 @@ import argparse
 import sys
 import time
 
-from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.acoustics import BACKENDS, BACKEND_HELP, AcousticsConfig
 from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.scene import PRESETS, SCENE_SPLITS, load_split
@@ -36,10 +36,11 @@ def main(argv: list[str] | None = None) -> int | None:
     parser.add_argument("--ray", metavar="ADDRESS", default=None,
                         help="run the source nodes as Ray tasks: 'local', or a running cluster's address")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
+    parser.add_argument("--acoustics-backend", default="project", choices=BACKENDS, help=BACKEND_HELP)
     args = parser.parse_args(argv)
 
     scenes = [load_world(args.world)] if args.world else load_split(args.split, preset=args.preset)[: args.scenes]
-    config = AcousticsConfig(head=args.head)
+    config = AcousticsConfig(head=args.head, backend=args.acoustics_backend)
     for scene in scenes:
         start = time.perf_counter()
         bank = RirBank(scene, config)

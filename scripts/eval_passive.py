@@ -26,7 +26,7 @@ import numpy as np
 from m2h_ros.core.audio.scoring import DEPLOYABLE_REFERENCE
 from m2h_ros.core.results import METRIC_LABELS, METRICS
 from m2h_ros.core.sounds.library import SoundLibrary
-from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.acoustics import BACKENDS, BACKEND_HELP, AcousticsConfig
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
@@ -87,10 +87,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
     parser.add_argument("--out", type=Path, default=None, help="JSON path (default: next to the checkpoint)")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
+    parser.add_argument("--acoustics-backend", default="project", choices=BACKENDS, help=BACKEND_HELP)
     parser.add_argument("--paired-with", type=Path, default=None,
                         help="JSON of another separator on the same episodes and head: add the paired difference")
     args = parser.parse_args(argv)
-    env_config = EnvConfig(camera=False, acoustics=AcousticsConfig(head=args.head))
+    env_config = EnvConfig(camera=False, acoustics=AcousticsConfig(head=args.head, backend=args.acoustics_backend))
     loaded = load_separator(args.checkpoint)
     library = SoundLibrary.load()
     results, started = {}, time.perf_counter()

@@ -37,7 +37,7 @@ from m2h_ros.core.results import (EpisodeResult, markdown_table, paired_differen
                                   summarize, write_results)
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
 from m2h_ros.core.world import acoustics  # noqa: E402
-from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
+from m2h_ros.core.world.acoustics import BACKENDS, BACKEND_HELP, AcousticsConfig  # noqa: E402
 from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, Episode, EpisodeConfig, episodes_for  # noqa: E402
@@ -82,6 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
     parser.add_argument("--mic-noise", type=float, default=0.0, help="microphone noise std / mixture RMS")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
+    parser.add_argument("--acoustics-backend", default="project", choices=BACKENDS, help=BACKEND_HELP)
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="separator")
     parser.add_argument("--policy-checkpoint", default="",
                         help="policy file (a directory for move2hear) for the learned controllers; "
@@ -169,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
                                                                  library=library, scene_split=scene_split,
                                                                  min_source_distance=args.min_source_distance)]
     env_config = EnvConfig(camera=any(controller_class(n).uses_camera for n in controllers),
-                           mic_noise=args.mic_noise, acoustics=AcousticsConfig(head=args.head))
+                           mic_noise=args.mic_noise,
+                           acoustics=AcousticsConfig(head=args.head, backend=args.acoustics_backend))
     results, model_files = run(args, controllers, episodes, loaded=loaded, library=library, env_config=env_config)
     meta = {"command": command, "checkpoint": repo_relative(args.checkpoint),
             "policy_checkpoint": repo_relative(args.policy_checkpoint) if args.policy_checkpoint else "shipped",

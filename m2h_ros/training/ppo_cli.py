@@ -17,7 +17,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from m2h_ros.core.sounds.library import SoundLibrary  # noqa: E402
-from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
+from m2h_ros.core.world.acoustics import BACKENDS, BACKEND_HELP, AcousticsConfig  # noqa: E402
 from m2h_ros.core.world.episodes import TASKS, EpisodeConfig  # noqa: E402
 from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.errors import reports_errors  # noqa: E402
@@ -56,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--separator", default="", help="separator checkpoint (default: the shipped one)")
     parser.add_argument("--no-camera", action="store_true", help="no RGB encoder (audio-only policy)")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
+    parser.add_argument("--acoustics-backend", default="project", choices=BACKENDS, help=BACKEND_HELP)
     parser.add_argument("--refiner-epochs", type=int, default=PPOConfig.refiner_epochs,
                         help="passes of f^R's L1 per update (quality)")
     parser.add_argument("--frozen-refiner", action=argparse.BooleanOptionalAction, default=False,
@@ -100,7 +101,9 @@ def config_from_args(args: argparse.Namespace) -> PPOConfig:
     episodes = EpisodeConfig(task=task, scene_split=args.world or args.scene_split, sound_split="heard", count=args.episodes, seed=args.seed,
                              max_steps=TRAIN_FAR_STEPS if task == "far_target" else None)
     return PPOConfig(kind=args.kind, preset=args.preset, episodes=episodes,
-                     env=KINDS[args.kind].env(camera=not args.no_camera, acoustics=AcousticsConfig(head=args.head)),
+                     env=KINDS[args.kind].env(camera=not args.no_camera,
+                                              acoustics=AcousticsConfig(head=args.head,
+                                                                        backend=args.acoustics_backend)),
                      separator=args.separator, n_envs=args.n_envs,
                      n_steps=args.n_steps, updates=args.updates, refiner_epochs=args.refiner_epochs,
                      train_refiner=False if args.frozen_refiner else None, quality_reward=args.quality_reward,

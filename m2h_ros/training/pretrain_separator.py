@@ -62,7 +62,7 @@ from torch.utils.data import DataLoader  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
-from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
+from m2h_ros.core.world.acoustics import BACKENDS, BACKEND_HELP, AcousticsConfig  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.config import check_int_fields  # noqa: E402
@@ -501,6 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="slow-down augmentation: each training sequence played at a speed uniform in "
                              "[SPEED_MIN, 1] (lower pitch, longer room; default 1: none)")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
+    parser.add_argument("--acoustics-backend", default="project", choices=BACKENDS, help=BACKEND_HELP)
     parser.add_argument("--init-from", type=Path, default=None,
                         help="start stage 1 from this separator checkpoint's weights (fine-tuning)")
     parser.add_argument("--final-lr", type=float, default=None,
@@ -516,7 +517,8 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> PretrainConfig:
     """The run :func:`main` makes of ``build_parser()``'s arguments."""
     model = dataclasses.replace(SeparatorConfig.preset(args.preset), backbone=args.backbone)
-    env = EnvConfig(camera=False, acoustics=AcousticsConfig(head=args.head))  # every stream hears the head
+    # every stream hears the head
+    env = EnvConfig(camera=False, acoustics=AcousticsConfig(head=args.head, backend=args.acoustics_backend))
     return PretrainConfig(model=model, seed=args.seed, epochs=args.epochs,
                       batches_per_epoch=args.batches_per_epoch, refiner_epochs=args.refiner_epochs,
                       refiner_batches_per_epoch=args.refiner_batches_per_epoch, threads=args.threads,

@@ -58,6 +58,10 @@ N_HEADINGS = 4
 #: Octave-band centres used for absorption, air absorption and the tail (Hz).
 BAND_CENTRES = np.array([125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0])
 _STORAGE_DTYPES = ("float16", "float32")
+#: RIR engines behind simulate_source: this module's, or RLRAudioPropagation (rlr_backend, opt-in).
+BACKENDS = ("project", "rlr")
+BACKEND_HELP = ("the engine of the RIR banks: project (default) or rlr (RLRAudioPropagation; opt-in, licensed "
+                "CC-BY-NC 4.0 for non-commercial use: scripts/setup.sh --with-rlr)")
 _MAX_ABSORPTION = 0.95  # a face absorbing more would be an open window, not a furnished wall
 
 
@@ -86,6 +90,10 @@ class AcousticsConfig:
     seed: int = 0  # noise of the late tail
     # kemar | sofa:PATH | free_field:SPACING_M (hrtf.load_head); a SOFA head is keyed by its content
     head: str = KEMAR
+    # project (this module's engine) | rlr (RLRAudioPropagation, opt-in, CC-BY-NC 4.0: rlr_backend)
+    backend: str = "project"
+    rlr_rays: int = 2000  # rlr backend: indirect rays traced from every listener (quality and cost)
+    rlr_threads: int = 1  # rlr backend: CPU threads of its simulation (speed only: not in the digest)
 
     def __post_init__(self) -> None:
         positive = (
@@ -121,6 +129,16 @@ class AcousticsConfig:
         if not isinstance(self.tail, bool) or not isinstance(self.air_absorption, bool):
             raise ConfigError("AcousticsConfig.tail and .air_absorption must be booleans")
         parse_head(self.head)
+        if self.backend not in BACKENDS:
+            raise ConfigError(f"AcousticsConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.backend == "rlr":
+            from m2h_ros.core.world import rlr_backend
+
+            rlr_backend.require()  # not installed: an error naming the opt-in install step and the licence
+        for name in ("rlr_rays", "rlr_threads"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"AcousticsConfig.{name} must be a positive integer, got {value!r}")
 
     @property
     def n_taps(self) -> int:
@@ -137,15 +155,22 @@ class AcousticsConfig:
 
     def digest(self) -> str:
         """Short hash of everything that changes results: settings, code version, libraries, the head
-        (KEMAR's banks keep the digest they had before other heads existed)."""
+        (KEMAR's banks keep the digest they had before other heads existed), the backend (the
+        project's banks keep the digest they had before other backends existed; another backend adds
+        its name, settings and version, so the banks of two engines never share a folder)."""
         config = asdict(self)
         identity = head_identity(config.pop("head"))
         hrtf = "MIT_KEMAR_normal_pinna" if identity is None else identity
-        payload = json.dumps(
-            {"config": config, "version": VERSION, "pyroomacoustics": pra.__version__,
-             "hrtf": f"{hrtf}, diffuse-field equalised"},
-            sort_keys=True,
-        )
+        backend, rays = config.pop("backend"), config.pop("rlr_rays")
+        del config["rlr_threads"]  # how fast, not what
+        key = {"config": config, "version": VERSION, "pyroomacoustics": pra.__version__,
+               "hrtf": f"{hrtf}, diffuse-field equalised"}
+        if backend != "project":
+            from m2h_ros.core.world import rlr_backend  # the opt-in package: a clear error where it is missing
+
+            key["backend"] = {"name": backend, "rays": rays, "engine": rlr_backend.engine_version(),
+                              "adapter": rlr_backend.VERSION}
+        payload = json.dumps(key, sort_keys=True)
         return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
@@ -388,6 +413,10 @@ def receiver_positions(scene: Any, config: AcousticsConfig) -> np.ndarray:
 def simulate_source(scene: Any, source_node: int, config: AcousticsConfig, *,
                     surfaces: list | None = None) -> np.ndarray:
     """(N, row_length) rows of the bank for one source node: early (4,2,E) then late (2,T) per receiver."""
+    if config.backend == "rlr":
+        from m2h_ros.core.world import rlr_backend
+
+        return rlr_backend.simulate_source(scene, source_node, config)
     hrtf = load_head(config.head, config.sample_rate)
     points = receiver_positions(scene, config)
     if not 0 <= source_node < len(points):
