@@ -11,7 +11,7 @@ from m2h_ros.paths import REPO_DIR
 
 RESULTS = REPO_DIR / "docs" / "results"
 MODELS = REPO_DIR / "m2h_ros" / "models" / "default"
-MAX_BYTES = 20_000_000
+MAX_BYTES = 30_000_000  # the result tables of every folder (episode-level CSVs), plots; no models
 MODEL_LINE = re.compile(r"`(m2h_ros/models/default/[\w.-]+)` sha256 `([0-9a-f]{64})`")
 READMES = sorted(p for p in RESULTS.rglob("README.md") if p != RESULTS / "README.md")
 
