@@ -106,8 +106,8 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
                            env=node_env(small_data_dir), cwd=ROOT)
     try:
         channels, received = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
+        listening = listening_addresses(port)  # while the run is surely still on (it ends some 20 s in)
         _, late = asyncio.run(watch(port, wanted=LATCHED, timeout=5.0))  # the map went out steps ago
-        listening = listening_addresses(port)
     finally:
         out, _ = run.communicate(timeout=240)
     assert run.returncode == 0, out
