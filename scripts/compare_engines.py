@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
-"""The two RIR engines side by side on one world: the project's and RLRAudioPropagation (opt-in,
-CC-BY-NC 4.0: scripts/setup.sh --with-rlr), both with their default settings otherwise, over the same
-source and receiver pairs (heading 0, both ears), with the project's own measures on both:
+"""The two RIR engines side by side on one world: the project's and RLRAudioPropagation.
+
+RLRAudioPropagation is opt-in (CC-BY-NC 4.0: scripts/setup.sh --with-rlr). Both engines run with their
+default settings unless ``--set FIELD=VALUE`` changes an ``AcousticsConfig`` field for both (for example
+``air_absorption=false``, ``wall_transmission_db=inf``, ``rlr_rays=8000``, ``rlr_sh_order=3``), over the
+same source and receiver pairs (heading 0, both ears), with the project's own measures on both:
 
 * T20 per octave band 125 Hz - 4 kHz (``acoustics.measure_rt60`` of ``octave_band``, mean of the ears)
 * DRR: energy of the direct sound (from 1 ms before the onset to 2.5 ms after it) over the rest, dB
@@ -10,6 +13,7 @@ source and receiver pairs (heading 0, both ears), with the project's own measure
 * ITD (ms, positive: left ear first; the direct sound's cross-correlation) and ILD (dB, left over right)
 
     python scripts/compare_engines.py --out docs/results/engines [--world test:0|map:PATH/map.yaml] [--sources 2]
+                                      [--set FIELD=VALUE ...]
 
 Writes pairs.csv (one row per pair and engine) and summary.md (medians per engine and of the paired
 differences, over all pairs, the pairs within one room and those across rooms, with the command); prints it.
@@ -19,11 +23,14 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
+import difflib
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from m2h_ros.core.world.acoustics import (
     BAND_CENTRES,
@@ -108,6 +115,21 @@ def summary(rows: list[dict], keys: list[str]) -> str:
     return "\n".join(lines) + f"\n\n{len(common)} source-receiver pairs, heading 0.\n"
 
 
+def config_overrides(items: list[str]) -> dict[str, object]:
+    """``FIELD=VALUE`` strings as AcousticsConfig fields; values read as YAML ("inf" as infinity)."""
+    fields = {f.name for f in dataclasses.fields(AcousticsConfig)} - {"backend", "rlr_threads"}
+    settings = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or name not in fields:
+            close = difflib.get_close_matches(name, sorted(fields), n=1)
+            raise ConfigError(f"--set {item!r} must be FIELD=VALUE with FIELD an AcousticsConfig setting"
+                              + (f" (did you mean {close[0]!r}?)" if close else f": {', '.join(sorted(fields))}"))
+        value = yaml.safe_load(text)
+        settings[name] = float(value) if isinstance(value, str) and value.lower() in ("inf", "+inf") else value
+    return settings
+
+
 @reports_errors("compare_engines")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -118,7 +140,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--receivers", type=int, default=6, help="receivers per source")
     parser.add_argument("--min-distance", type=float, default=1.5, help="m between source and receiver")
     parser.add_argument("--threads", type=int, default=1, help="the rlr engine's threads")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="an AcousticsConfig field for both engines (repeatable), e.g. air_absorption=false")
     args = parser.parse_args(argv)
+    settings = config_overrides(args.set)
     split, _, index = args.world.partition(":")
     if is_world_spec(args.world):
         scene = load_world(args.world)
@@ -129,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
                           f"map:PATH/map.yaml or mesh:PATH")
     rows, seconds = [], {}
     for backend in BACKENDS:
-        config = AcousticsConfig(backend=backend, rlr_threads=args.threads)
+        config = AcousticsConfig(**{**settings, "backend": backend, "rlr_threads": args.threads})
         start = time.perf_counter()
         for source, receivers in pairs(scene, config, sources=args.sources, receivers=args.receivers,
                                        min_distance=args.min_distance):

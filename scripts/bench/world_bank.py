@@ -28,10 +28,8 @@ import numpy as np
 
 from m2h_ros.core.world.acoustics import AcousticsConfig, scene_surfaces, simulate_source
 from m2h_ros.core.world.bank_build import compute_sources
-from m2h_ros.core.world.frames import OccupancyGrid
 from m2h_ros.core.world.rir_bank import RirBank
-from m2h_ros.core.world.ros_map import write_ros_map
-from m2h_ros.core.world.sample_worlds import apartment_grid
+from m2h_ros.core.world.sample_worlds import write_home_map
 from m2h_ros.core.world.worlds import load_world_with_report
 from m2h_ros.machine import availability_line, load_average, reference_seconds
 
@@ -40,14 +38,6 @@ TARGET_S = 30 * 60.0
 PARTS = (("ray tracing (libroom)", "ray_tracing"), ("image-source model (libroom)", "image_source_model"),
          ("early part (HRIRs per image)", "_early_part"), ("late part (shaped noise)", "_late_part"),
          ("walls crossed by direct paths", "_walls_crossed"), ("surfaces", "scene_surfaces"))
-
-
-def scaled_home(folder: Path, *, scale: float, noise: float) -> Path:
-    """The apartment's raster with every length times ``scale``, written as map.yaml + map.world.yaml."""
-    plan = apartment_grid(resolution=0.05, noise=noise)
-    path = write_ros_map(folder / "map.yaml", OccupancyGrid(plan.cells, 0.05 * scale, plan.origin))
-    (folder / "map.world.yaml").write_text("door_width: 1.2  # the apartment's 0.8-0.85 m doors, scaled\n")
-    return path
 
 
 def source_parts(scene, node: int, config: AcousticsConfig) -> tuple[float, dict[str, float]]:
@@ -85,7 +75,7 @@ def main() -> None:
     print(f"reference workload: {1e3 * reference:.1f} ms (best of 3)")
     with tempfile.TemporaryDirectory(prefix="m2h_bench_world_bank_") as root:
         root = Path(root)
-        path = scaled_home(root / "home", scale=args.scale, noise=args.noise)
+        path = write_home_map(root / "home", scale=args.scale, noise=args.noise)
         scene, report = load_world_with_report(f"map:{path}")
         n_nodes = scene.grid.n_nodes
         area = sum(room.floor_area for room in scene.rooms)

@@ -5,14 +5,16 @@ of the two interleaved; their ratio (target: the imported world within 20 % of t
 the imported world's peak RSS with its bank memory-mapped (target: <= 2 GB).
 
     python scripts/bench/world_sim.py [--steps 200] [--repeats 3] [--threads 2] [--split train]
-                                      [--default-acoustics] [--noise 0.3]
+                                      [--default-acoustics] [--noise 0.3] [--scale 1.25]
 
 The apartment is written as ``scripts/draw_apartment_map.py`` writes it (--noise, seed 0) into
 data_dir()/bench_worlds/ (the episodes name it by its path). The generated worlds are the scenes of
 --split (``train``: the generated scenes with the most nodes; their node counts are printed). The
 acoustics are the tests' fast settings (0.25 s RIRs, image sources to order 2, no tail), so both
 banks build in a minute; --default-acoustics uses ``AcousticsConfig()`` (1 s RIRs, a bank four times
-the size: minutes to build, and the RSS figure for the default engine).
+the size: minutes to build, and the RSS figure for the default engine). --scale 1.25 --noise 0 plays the
+~154 m^2 home of scripts/bench/world_bank.py instead (139 nodes, a 3.2 GiB bank with the default acoustics:
+the RSS target's home).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
 from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.ros_map import write_ros_map
-from m2h_ros.core.world.sample_worlds import apartment_grid
+from m2h_ros.core.world.sample_worlds import apartment_grid, write_home_map
 from m2h_ros.core.world.scene import SCENE_SPLITS
 from m2h_ros.core.world.worlds import worlds_of
 from m2h_ros.machine import availability_line, load_average
@@ -48,11 +50,17 @@ def sim_bench():
     return importlib.import_module("sim")
 
 
-def apartment_spec(noise: float) -> str:
-    """``map:PATH`` of the example apartment, written once per noise level."""
-    path = data_dir() / "bench_worlds" / f"apartment_noise{noise:g}" / "map.yaml"
-    if not path.exists():
-        write_ros_map(path, apartment_grid(resolution=0.05, noise=noise))
+def apartment_spec(noise: float, scale: float | None) -> str:
+    """``map:PATH`` of the example apartment (or with --scale, the home of scripts/bench/world_bank.py),
+    written once per noise level and scale."""
+    if scale is None:
+        path = data_dir() / "bench_worlds" / f"apartment_noise{noise:g}" / "map.yaml"
+        if not path.exists():
+            write_ros_map(path, apartment_grid(resolution=0.05, noise=noise))
+    else:
+        path = data_dir() / "bench_worlds" / f"home_x{scale:g}_noise{noise:g}" / "map.yaml"
+        if not path.exists():
+            write_home_map(path.parent, scale=scale, noise=noise)
     return f"map:{path}"
 
 
@@ -65,6 +73,8 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=200, help="near-target episodes per world")
     parser.add_argument("--split", choices=sorted(SCENE_SPLITS), default="train", help="the generated worlds")
     parser.add_argument("--noise", type=float, default=0.3, help="the apartment map's SLAM look")
+    parser.add_argument("--scale", type=float, default=None,
+                        help="the apartment's lengths times this (1.25: the ~154 m^2 home of world_bank.py)")
     parser.add_argument("--build-workers", type=int, default=2, help="processes building RIR banks")
     parser.add_argument("--default-acoustics", action="store_true", help="AcousticsConfig() instead of the fast one")
     args = parser.parse_args()
@@ -73,7 +83,7 @@ def main() -> None:
     library, which = sim.open_library()
     print(f"sound library: {which}; acoustics: {acoustics.rir_length} s RIRs, image sources to order "
           f"{acoustics.ism_max_order}, tail {'on' if acoustics.tail else 'off'}")
-    worlds = {"imported": apartment_spec(args.noise), "generated": args.split}
+    worlds = {"imported": apartment_spec(args.noise, args.scale), "generated": args.split}
     configs = {}
     for kind, spec in worlds.items():
         scenes = worlds_of(spec)

@@ -94,6 +94,9 @@ class AcousticsConfig:
     backend: str = "project"
     rlr_rays: int = 2000  # rlr backend: indirect rays traced from every listener (quality and cost)
     rlr_threads: int = 1  # rlr backend: CPU threads of its simulation (speed only: not in the digest)
+    # rlr backend: spherical-harmonic order of its indirect field (everything but an unoccluded direct path:
+    # reflections, diffraction, transmission). Order 1 (RLR's default) carries no interaural delay.
+    rlr_sh_order: int = 1
 
     def __post_init__(self) -> None:
         positive = (
@@ -135,7 +138,7 @@ class AcousticsConfig:
             from m2h_ros.core.world import rlr_backend
 
             rlr_backend.require()  # not installed: an error naming the opt-in install step and the licence
-        for name in ("rlr_rays", "rlr_threads"):
+        for name in ("rlr_rays", "rlr_threads", "rlr_sh_order"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"AcousticsConfig.{name} must be a positive integer, got {value!r}")
@@ -161,7 +164,7 @@ class AcousticsConfig:
         config = asdict(self)
         identity = head_identity(config.pop("head"))
         hrtf = "MIT_KEMAR_normal_pinna" if identity is None else identity
-        backend, rays = config.pop("backend"), config.pop("rlr_rays")
+        backend, rays, sh_order = config.pop("backend"), config.pop("rlr_rays"), config.pop("rlr_sh_order")
         del config["rlr_threads"]  # how fast, not what
         key = {"config": config, "version": VERSION, "pyroomacoustics": pra.__version__,
                "hrtf": f"{hrtf}, diffuse-field equalised"}
@@ -170,6 +173,8 @@ class AcousticsConfig:
 
             key["backend"] = {"name": backend, "rays": rays, "engine": rlr_backend.engine_version(),
                               "adapter": rlr_backend.VERSION}
+            if sh_order != 1:  # keyed where set, so the banks of RLR's default order keep their digest
+                key["backend"]["sh_order"] = sh_order
         payload = json.dumps(key, sort_keys=True)
         return hashlib.sha256(payload.encode()).hexdigest()[:16]
 

@@ -203,6 +203,7 @@ def _context(rlr: Any, scene: Any, config: AcousticsConfig, workdir: Path) -> An
     settings.max_ir_length = float(config.rir_length)
     settings.thread_count = int(config.rlr_threads)
     settings.indirect_ray_count = int(config.rlr_rays)
+    settings.indirect_sh_order = int(config.rlr_sh_order)
     settings.frequency_bands = FREQUENCY_BANDS
     vertices, parts, materials = scene_geometry(scene, config)
     database = workdir / "materials.json"

@@ -10,11 +10,13 @@ when it lies inside the footprint and is not free, or touches furniture; everyth
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
 from m2h_ros.core.world.frames import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from m2h_ros.core.world.ros_map import write_ros_map
 from m2h_ros.errors import ConfigError
 
 Rect = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax (metres)
@@ -73,6 +75,18 @@ def apartment_grid(*, resolution: float = 0.05, yaw: float = 0.0, seed: int = 0,
         cells = _slam_look(cells, np.random.default_rng(seed), noise)
     corner = apartment_to_map([-APARTMENT_MARGIN, -APARTMENT_MARGIN], yaw=yaw)
     return OccupancyGrid(cells, resolution, (float(corner[0]), float(corner[1])), float(yaw))
+
+
+def write_home_map(folder, *, scale: float = 1.0, noise: float = 0.0):
+    """The apartment as a nav2 map (``folder/map.yaml``) with every length times ``scale`` (its 5 cm raster
+    read at ``0.05 * scale`` m a pixel: 1.25 gives a ~154 m^2 home), beside a world file that keeps its
+    widened doors doors (door_width 1.2 m at any scale up to 1.4). Returns the map.yaml path."""
+    if not (math.isfinite(scale) and 0.5 <= scale <= 1.4):
+        raise ConfigError(f"home scale must be in [0.5, 1.4] (its 0.85 m doors stay under 1.2 m), not {scale}")
+    plan = apartment_grid(resolution=0.05, noise=noise)
+    path = write_ros_map(Path(folder) / "map.yaml", OccupancyGrid(plan.cells, 0.05 * scale, plan.origin))
+    (Path(folder) / "map.world.yaml").write_text("door_width: 1.2  # the apartment's 0.8-0.85 m doors, scaled\n")
+    return path
 
 
 def apartment_to_map(points, *, yaw: float = 0.0) -> np.ndarray:

@@ -1,6 +1,7 @@
 """The rlr acoustics backend (RLRAudioPropagation): bank layout, rate and keys, interaural cues, materials,
 backend separation, and the clear error where the opt-in package is not installed."""
 
+import importlib.util
 import sys
 
 import numpy as np
@@ -96,11 +97,13 @@ def test_backend_settings_are_validated():
         AcousticsConfig(rlr_rays=0)
     with pytest.raises(ConfigError, match="rlr_threads"):
         AcousticsConfig(rlr_threads=1.5)
+    with pytest.raises(ConfigError, match="rlr_sh_order"):
+        AcousticsConfig(rlr_sh_order=0)
 
 
 def test_project_key_does_not_depend_on_rlr_settings():
     project = AcousticsConfig()
-    assert project.digest() == AcousticsConfig(rlr_rays=17, rlr_threads=2).digest()
+    assert project.digest() == AcousticsConfig(rlr_rays=17, rlr_threads=2, rlr_sh_order=3).digest()
 
 
 @installed
@@ -121,6 +124,26 @@ def test_rows_have_the_banks_shape_rate_and_keys(room_rows):
     assert config.digest() != AcousticsConfig(**{**SHORT, "rlr_rays": 500}).digest()
     assert config.digest() != AcousticsConfig(backend="rlr", **{**SHORT, "rlr_rays": 400}).digest()
     assert config.digest() == AcousticsConfig(backend="rlr", rlr_threads=2, **SHORT).digest()
+    # The indirect field's order is keyed where set; RLR's default order keeps the digest banks had.
+    assert config.digest() != AcousticsConfig(backend="rlr", rlr_sh_order=3, **SHORT).digest()
+    assert config.digest() == AcousticsConfig(backend="rlr", rlr_sh_order=1, **SHORT).digest()
+
+
+def _compare_engines():
+    spec = importlib.util.spec_from_file_location("compare_engines_script", REPO_DIR / "scripts" / "compare_engines.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_compare_engines_settings_are_acoustics_fields_read_as_yaml():
+    overrides = _compare_engines().config_overrides
+    assert overrides(["wall_transmission_db=inf", "air_absorption=false", "rlr_sh_order=3"]) == {
+        "wall_transmission_db": float("inf"), "air_absorption": False, "rlr_sh_order": 3}
+    with pytest.raises(ConfigError, match="did you mean 'air_absorption'"):
+        overrides(["air_absorbtion=false"])
+    with pytest.raises(ConfigError, match="FIELD=VALUE"):
+        overrides(["backend=rlr"])  # both engines run: the backend is not a setting here
 
 
 @installed
