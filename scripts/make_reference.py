@@ -158,15 +158,14 @@ def _launch_value(value) -> str:
 
 def _launch_namespace(tree: ast.Module) -> dict:
     """The names a launch file takes from m2h_ros's ROS-free modules and the module-level values it builds
-    from them, so its arguments read without ROS's launch packages (a name from a module that needs them
-    is left out: an expression using it is computed when the launch starts)."""
+    from them, so its arguments read without ROS's launch packages (a name from m2h_ros.ros is left out: an
+    expression using it is computed when the launch starts)."""
     namespace: dict = {}
     for node in tree.body:
-        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("m2h_ros"):
-            try:
-                module = importlib.import_module(node.module)
-            except ImportError:
-                continue
+        module_name = node.module or "" if isinstance(node, ast.ImportFrom) else ""
+        # The core only: m2h_ros.ros needs ROS's launch packages (the import boundary keeps them there).
+        if module_name.startswith("m2h_ros") and not module_name.startswith(("m2h_ros.ros", "m2h_ros.nodes")):
+            module = importlib.import_module(module_name)
             namespace.update({alias.asname or alias.name: getattr(module, alias.name) for alias in node.names})
         elif isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name):
             try:
@@ -178,6 +177,27 @@ def _launch_namespace(tree: ast.Module) -> dict:
 
 def _evaluated(expression: ast.expr, namespace: dict):
     return eval(compile(ast.Expression(expression), "<launch file>", "eval"), dict(namespace))  # noqa: S307
+
+
+def _recorded(*args, **kwargs) -> tuple[tuple, dict]:
+    """Stands in for DeclareLaunchArgument: what it was called with."""
+    return args, kwargs
+
+
+def _declared(tree: ast.Module, namespace: dict) -> list[tuple[tuple, dict]]:
+    """The (args, kwargs) of each DeclareLaunchArgument the file makes, those a comprehension makes included
+    (the comprehension is evaluated with the call recorded, so its loop variables are bound)."""
+    namespace = {**namespace, "DeclareLaunchArgument": _recorded}
+    is_declaration = lambda node: (isinstance(node, ast.Call)  # noqa: E731
+                                   and getattr(node.func, "id", "") == "DeclareLaunchArgument")
+    declared, inside = [], set()
+    for node in ast.walk(tree):  # breadth first: a comprehension before the call inside it
+        if isinstance(node, ast.ListComp | ast.GeneratorExp) and is_declaration(node.elt):
+            inside.add(id(node.elt))
+            declared += list(_evaluated(node, namespace))
+        elif is_declaration(node) and id(node) not in inside:
+            declared.append(_evaluated(node, namespace))
+    return declared
 
 
 def launch_table(path: str) -> str:
@@ -192,30 +212,29 @@ def launch_table(path: str) -> str:
     namespace = _launch_namespace(tree)
     rows = []
     for call in ast.walk(tree):
-        if not isinstance(call, ast.Call) or getattr(call.func, "id", "") not in ("Argument", "DeclareLaunchArgument"):
+        if not isinstance(call, ast.Call) or getattr(call.func, "id", "") != "Argument":
             continue
-        arguments = [_evaluated(a, namespace) for a in call.args]
+        name, node, field = (_evaluated(a, namespace) for a in call.args)
         keywords = {}
         for keyword in call.keywords:
             try:
                 keywords[keyword.arg] = _evaluated(keyword.value, namespace)
-            except NameError:
-                keywords[keyword.arg] = None if keyword.arg != "default" else "see description"
-        if call.func.id == "Argument":
-            name, node, field = arguments
-            cls = configs[node]
-            meta = next(f.metadata for f in dataclasses.fields(cls) if f.name == field)
-            default = keywords.get("default")
-            if default is None:
-                default = code(_launch_value(_params_file_value(node, field, cls)))
-            elif default != "see description":
-                default = code(default)
-            description = keywords.get("description") or meta.get("description", "")
-            rows.append([code(f"{name}:="), code(f"{node}.{field}"), default, cell(description), cell(_allowed(meta))])
+            except NameError:  # computed by a function of ROS's launch packages when the launch starts
+                keywords[keyword.arg] = None
+        cls = configs[node]
+        meta = next(f.metadata for f in dataclasses.fields(cls) if f.name == field)
+        if "default" in keywords and keywords["default"] is None:
+            default = "see description"
+        elif "default" in keywords:
+            default = code(keywords["default"])
         else:
-            choices = keywords.get("choices")
-            rows.append([code(f"{arguments[0]}:="), "", code(keywords["default_value"]), cell(keywords["description"]),
-                         cell("one of " + ", ".join(map(repr, choices)) if choices else "")])
+            default = code(_launch_value(_params_file_value(node, field, cls)))
+        description = keywords.get("description") or meta.get("description", "")
+        rows.append([code(f"{name}:="), code(f"{node}.{field}"), default, cell(description), cell(_allowed(meta))])
+    for args, kwargs in _declared(tree, namespace):
+        choices = kwargs.get("choices")
+        rows.append([code(f"{args[0]}:="), "", code(kwargs["default_value"]), cell(kwargs["description"]),
+                     cell("one of " + ", ".join(map(repr, choices)) if choices else "")])
     if not rows:
         raise ConfigError(f"{path} declares no launch argument")
     return table(["argument", "sets", "default", "description", "allowed"], rows)

@@ -294,16 +294,33 @@ def test_robot_mode_starts_the_robot_nodes_and_no_simulator(robot):
     for name, node in started.items():
         files = [p for p in node.kwargs["parameters"] if isinstance(p, str | Path)]
         assert [os.path.normpath(p) for p in files] == [str(ROOT / "params" / f"{name}.yaml")], name
-    remaps = {name: dict(node.kwargs["remappings"]) for name, node in started.items()}
+    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
+    remaps = {name: {topic: perform(to, defaults) for topic, to in node.kwargs["remappings"]}
+              for name, node in started.items()}
     assert remaps["capture_node"] == {topics.AUDIO: topics.MIC_AUDIO}  # frames to the episode driver
     assert remaps["audio_common_adapter"] == {topics.AUDIO: topics.MIC_AUDIO}
-    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
     for name, choice in (("capture_node", "capture"), ("audio_common_adapter", "audio_common")):
         (equals,) = started[name].kwargs["condition"].args
         assert equals.args[0].args == ("microphones",) and equals.args[1] == choice
     assert defaults["microphones"] == "capture"  # one of the two runs, the microphone by default
     assert remaps["controller_node"][topics.ODOM] == topics.STEP_ODOM
-    assert remaps["base_node"] == {}  # the robot's own odom and cmd_vel
+    # The robot's own odom and cmd_vel, under the pipeline's names unless the driver's are given
+    assert remaps["base_node"] == {topics.ODOM: topics.ODOM, topics.CMD_VEL: topics.CMD_VEL}
+
+
+def test_robot_mode_remaps_the_drivers_own_topic_names(robot):
+    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
+    defaults.update(odom_topic="/wheel/odometry", cmd_vel_topic="/base/cmd_vel", rgb_topic="/head/color",
+                    depth_topic="/head/depth")
+    remaps = {name: {topic: perform(to, defaults) for topic, to in node.kwargs["remappings"]}
+              for name, node in nodes(robot).items()}
+    assert remaps["base_node"] == {topics.ODOM: "/wheel/odometry", topics.CMD_VEL: "/base/cmd_vel"}
+    assert remaps["episode_driver"] == {topics.ODOM: "/wheel/odometry", topics.RGB: "/head/color",
+                                        topics.DEPTH: "/head/depth"}
+    # The controller reads what the episode driver stamps with each step, whatever the driver's names.
+    assert remaps["controller_node"] == {topics.ODOM: topics.STEP_ODOM, topics.RGB: topics.STEP_RGB,
+                                         topics.DEPTH: topics.STEP_DEPTH}
+    assert remaps["capture_node"] == remaps["audio_common_adapter"] == {topics.AUDIO: topics.MIC_AUDIO}
 
 
 def test_robot_mode_arguments_reach_every_node_that_needs_them(robot):
