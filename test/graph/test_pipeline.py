@@ -393,6 +393,50 @@ def test_run_pipeline_stopped_or_killed_leaves_no_node_running(signum, small_lib
             os.kill(pid, signal.SIGKILL)
 
 
+def _layout_panels(node):
+    if node.get("type") == "panel":
+        yield node
+    for item in node.get("items", []):
+        yield from _layout_panels(item["content"])
+
+
+def test_every_panel_of_the_foxglove_layout_shows_what_the_run_recorded(tiny_run):
+    """params/foxglove_layout.json against a recorded run: each panel's topic is in the bag with the kind of
+    message the panel draws, each plotted field exists and is a number, the 3D view follows a frame of
+    the bag's TF tree, and the spectrogram colour scale spans most of the recorded pictures' values."""
+    import json
+
+    out, _ = tiny_run
+    messages = bag_messages(out / "bag")
+    panels = list(_layout_panels(json.loads((ROOT / "params" / "foxglove_layout.json").read_text())["content"]))
+    assert {p["panelType"] for p in panels} == {"ThreeDee", "Image", "Plot", "Audio"}
+    frames = {t.child_frame_id for m in messages["/tf"] + messages["/tf_static"] for t in m.transforms}
+    for panel in panels:
+        config = panel["config"]
+        if panel["panelType"] == "ThreeDee":
+            assert config["followTf"] in frames
+            for topic in config["topics"]:
+                assert messages.get(topic), topic
+            assert hasattr(messages["/map"][0], "info") and hasattr(messages["/path"][0], "markers")
+        elif panel["panelType"] == "Plot":
+            for series in config["paths"]:
+                topic, field = series["value"].split(".")
+                assert messages.get(topic) and all(np.isfinite(float(getattr(m, field))) for m in messages[topic])
+        elif panel["panelType"] == "Audio":
+            assert all(m.format == "pcm-s16" and len(m.data) for m in messages[config["topic"]]), config["topic"]
+        else:
+            mode = config["imageMode"]
+            images = messages.get(mode["imageTopic"], [])
+            assert images and all(len(m.data) == m.height * m.step for m in images), mode["imageTopic"]
+            if "calibrationTopic" in mode:
+                (info, *_) = messages[mode["calibrationTopic"]]
+                assert (info.width, info.height) == (images[0].width, images[0].height)
+            if "minValue" in mode:
+                values = np.concatenate([np.frombuffer(bytes(m.data), "<f4") for m in images])
+                shown = (values >= mode["minValue"]) & (values <= mode["maxValue"])
+                assert shown.mean() > 0.5, (mode["imageTopic"], np.percentile(values, [5, 50, 95]))
+
+
 def _stamp(msg) -> int:
     header = msg.markers[0].header if hasattr(msg, "markers") else msg.header  # a MarkerArray has none itself
     return header.stamp.sec * 10**9 + header.stamp.nanosec
