@@ -11,7 +11,7 @@ from m2h_ros.paths import REPO_DIR
 PAGE = REPO_DIR / "docs" / "reference" / "python.md"
 
 
-def test_the_python_reference_example_runs():
+def test_the_python_reference_example_runs(whole_library):
     example = re.search(r"## Example\n.*?```python\n(.*?)```", PAGE.read_text(), re.S).group(1)
     result = subprocess.run([sys.executable, "-c", example], capture_output=True, text=True, timeout=600,
                             cwd=REPO_DIR, env={**os.environ, "OMP_WAIT_POLICY": "PASSIVE"})
