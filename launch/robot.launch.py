@@ -5,7 +5,9 @@ the robot's microphones (device:=), or with microphones:=audio_common audio_comm
 robot's audio_common stream; episode_driver turns the stream into steps (a step's
 frame is captured after the base finished the step before), separator_node and controller_node work
 as in simulation, base_node carries each command out on the base (odom in, cmd_vel out), and the
-recorder writes the run to a fresh runs/<date-time>/bag. The shipped Move2Hear policies read the
+recorder writes the run to a fresh runs/<date-time>/bag. A driver whose topics have other names
+is remapped: odom_topic:=, cmd_vel_topic:=, rgb_topic:=, depth_topic:= (with other camera names, also
+record_exclude:=[RGB,DEPTH] to leave its raw streams out of the bag). The shipped Move2Hear policies read the
 camera: camera:=true (default) passes the robot's RGB-D images (camera/rgb/image_raw and
 camera/depth/image_raw, 32FC1 metres, at the policy's 128 x 128); camera:=false runs only controllers
 that read no images (the training-free baselines) and refuses the others at start. The launch ends
@@ -21,7 +23,7 @@ from launch.conditions import IfCondition
 from launch.substitutions import EqualsSubstitution, LaunchConfiguration
 from launch_ros.actions import Node
 
-from m2h_ros.node_configs import MICROPHONES, ROBOT_CONFIGS, ROBOT_RECORDING, ROBOT_REMAPS
+from m2h_ros.node_configs import DRIVER_TOPICS, MICROPHONES, ROBOT_CONFIGS, ROBOT_RECORDING, ROBOT_REMAPS
 from m2h_ros.ros.launching import (Argument, check_arguments, dds_profile, declare, exit_handler, node_settings,
                                    run_directory, stop_with_launch)
 
@@ -59,14 +61,21 @@ def generate_launch_description():
     microphones = [DeclareLaunchArgument("microphones", default_value="capture", choices=list(MICROPHONES),
                                          description="capture: a microphone PortAudio sees (capture_node); "
                                                      "audio_common: the robot's audio_common stream")]
+    # The driver's own topic names (odom_topic:=/wheel/odometry ...), remapped in every node that uses them.
+    driver = [DeclareLaunchArgument(f"{key}_topic", default_value=topic,
+                                    description=f"{what} as the robot's driver names it")
+              for key, (topic, _, what) in DRIVER_TOPICS.items()]
+    remaps = {name: [*ROBOT_REMAPS.get(name, ()), *((topic, LaunchConfiguration(f"{key}_topic"))
+                                                   for key, (topic, users, _) in DRIVER_TOPICS.items() if name in users)]
+              for name in NODES}
     source = {node: IfCondition(EqualsSubstitution(LaunchConfiguration("microphones"), choice))
               for choice, node in MICROPHONES.items()}
     nodes = {name: Node(package="m2h_ros", executable=name, name=name, output="screen",
-                        parameters=[params[name], overrides.get(name, {})], remappings=list(ROBOT_REMAPS.get(name, ())),
+                        parameters=[params[name], overrides.get(name, {})], remappings=remaps[name],
                         condition=source.get(name))
              for name in NODES}
     handlers = [exit_handler(action, name, finishes_run=name == "episode_driver") for name, action in nodes.items()]
     # Every argument checked before any node starts; each node stops should the launch process die.
-    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, check_arguments(ARGUMENTS, configs),
+    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, *driver, check_arguments(ARGUMENTS, configs),
                               stop_with_launch(), *dds_profile(share), *nodes.values(),
                               *handlers])

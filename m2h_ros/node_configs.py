@@ -1,5 +1,7 @@
 """The configuration of each node, one frozen dataclass each; ``params/<node>.yaml`` holds the defaults."""
 
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -260,3 +262,39 @@ ROBOT_REMAPS = {"capture_node": ((topics.AUDIO, topics.MIC_AUDIO),),
 # a bag), whose frames at each step the episode driver republishes on step/camera/... for the controller,
 # replay and the bag's viewers; chunks compressed.
 ROBOT_RECORDING = {"exclude": ("/" + topics.RGB, "/" + topics.DEPTH), "compression": "zstd"}
+# A robot driver's topics that robot mode reads or writes, by the option that renames them
+# (run_pipeline.py --odom-topic, robot.launch.py odom_topic:=): the pipeline's name, the robot-mode nodes that
+# use it, what it is. A driver that publishes /wheel/odometry or reads /base/cmd_vel is remapped, not patched.
+DRIVER_TOPICS = {
+    "odom": (topics.ODOM, ("base_node", "episode_driver"), "the robot's odometry (nav_msgs/Odometry)"),
+    "cmd_vel": (topics.CMD_VEL, ("base_node",), "the base's velocity command (geometry_msgs/TwistStamped, or "
+                "Twist with base_node's twist_stamped: false)"),
+    "rgb": (topics.RGB, ("episode_driver",), "the camera's colour image (sensor_msgs/Image)"),
+    "depth": (topics.DEPTH, ("episode_driver",), "the camera's depth image (sensor_msgs/Image, 32FC1 metres or "
+              "16UC1 millimetres)"),
+}
+# A ROS topic name as a remapping takes it: relative or absolute, tokens of letters, digits and underscores.
+TOPIC_NAME = re.compile(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*")
+
+
+def robot_remaps(driver_topics: Mapping[str, str] | None = None) -> dict[str, tuple[tuple[str, str], ...]]:
+    """Robot mode's remappings, node -> ((topic, to), ...): ROBOT_REMAPS, and each DRIVER_TOPICS entry the
+    robot names otherwise (``{"odom": "/wheel/odometry"}``) in every node that uses it."""
+    remaps = {node: list(pairs) for node, pairs in ROBOT_REMAPS.items()}
+    for key, name in (driver_topics or {}).items():
+        if key not in DRIVER_TOPICS:
+            raise ConfigError(f"no driver topic {key!r} to rename; known: {', '.join(DRIVER_TOPICS)}")
+        if not TOPIC_NAME.fullmatch(name):
+            raise ConfigError(f"{key} topic {name!r} is not a ROS topic name (letters, digits and _ between '/', "
+                              f"starting with a letter, e.g. /wheel/odometry)")
+        topic, users, _ = DRIVER_TOPICS[key]
+        if name != topic:
+            for node in users:
+                remaps.setdefault(node, []).append((topic, name))
+    return {node: tuple(pairs) for node, pairs in remaps.items()}
+
+
+def robot_recording(driver_topics: Mapping[str, str] | None = None) -> dict[str, object]:
+    """What robot mode records by default (ROBOT_RECORDING), the raw camera streams under the driver's names."""
+    names = {key: (driver_topics or {}).get(key, DRIVER_TOPICS[key][0]) for key in ("rgb", "depth")}
+    return {**ROBOT_RECORDING, "exclude": tuple(n if n.startswith("/") else "/" + n for n in names.values())}

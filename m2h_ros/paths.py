@@ -16,6 +16,8 @@ def data_dir() -> Path:
 
 
 REPO_DIR = PACKAGE_DIR.parent
+# Where scripts write by default: ignored by git, so a rerun never overwrites the committed docs/results/.
+RUNS_DIR = REPO_DIR / "runs"
 
 
 def repo_relative(path: str | os.PathLike) -> str:

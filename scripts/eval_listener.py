@@ -27,7 +27,7 @@ from m2h_ros.paths import file_label, repo_relative
 from m2h_ros.training.listener_eval import ESTIMATES, REFERENCES, evaluate_listener, summarize
 
 LABELS = {"microphone": "microphone (floor)", "masked_mixture": "output: masked mixture",
-          "refined": "old output: refined", "oracle": "ideal mask (oracle)"}
+          "refined": "output: refined (mixture phase)", "oracle": "ideal mask (oracle)"}
 REFERENCE_LABELS = {"early": "early image (direct + 50 ms)", "as_heard": "as heard (whole RIR)"}
 
 

@@ -5,6 +5,7 @@
     python scripts/run_pipeline.py --set sim_node.mic_noise=0.1 --set controller_node.seed=3
     python scripts/run_pipeline.py --live-view      # and open ws://localhost:8765 in Foxglove
     python scripts/run_pipeline.py --robot --target-class speech --steps 20 --device ReSpeaker
+    python scripts/run_pipeline.py --robot --odom-topic /wheel/odometry --cmd-vel-topic /base/cmd_vel
 
 --robot runs the pipeline on a robot instead (docs/how-to/robot-mode.md): capture_node, episode_driver,
 separator, controller, base_node and recorder; no simulator, no evaluator; the episode driver ends it.
@@ -36,7 +37,8 @@ import yaml
 from m2h_ros.core.world.worlds import canonical_spec
 from m2h_ros.errors import M2HError
 from m2h_ros.io.topic_selection import COMPRESSIONS
-from m2h_ros.node_configs import MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, ROBOT_RECORDING, ROBOT_REMAPS
+from m2h_ros.node_configs import (DRIVER_TOPICS, MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, robot_recording,
+                                  robot_remaps)
 from m2h_ros.ros import stop_signals
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,6 +93,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     robot.add_argument("--device", default=None, help="capture_node device (default: its params file)")
     robot.add_argument("--no-camera", action="store_true",
                        help="the robot passes no RGB-D: only controllers that read no images run")
+    for key, (topic, _, what) in DRIVER_TOPICS.items():
+        robot.add_argument(f"--{key.replace('_', '-')}-topic", dest=f"{key}_topic", default=topic, metavar="TOPIC",
+                           help=f"{what} as the robot's driver names it (default: {topic})")
     return parser.parse_args(argv)
 
 
@@ -104,6 +109,11 @@ def robot_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     if args.device is not None:
         params["capture_node"]["device"] = args.device
     return params
+
+
+def driver_topics(args: argparse.Namespace) -> dict[str, str]:
+    """The robot driver's topic names this run was given, by DRIVER_TOPICS key."""
+    return {key: getattr(args, f"{key}_topic") for key in DRIVER_TOPICS}
 
 
 def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
@@ -128,7 +138,7 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
         params["separator_node"]["checkpoint"] = str(Path(args.separator_checkpoint).resolve())
     params["recorder_node"]["output"] = str(args.out / "bag")
     if args.robot:
-        params["recorder_node"].update(ROBOT_RECORDING)
+        params["recorder_node"].update(robot_recording(driver_topics(args)))
     for name, value in (("topics", args.record_topics), ("exclude", args.record_exclude),
                         ("max_rate_hz", args.record_max_rate), ("compression", args.compression)):
         if value is not None:
@@ -173,6 +183,19 @@ def prepare_data(config) -> None:
     sim_world.sim_episodes(config, sim_world.prepare_library(config))
 
 
+def node_environment(environ: dict[str, str], *, robot: bool) -> dict[str, str]:
+    """The nodes' environment. A simulated run keeps to itself (this host only, a random ROS domain, unless
+    the environment names them), so two runs on one machine never meet; robot mode leaves both as ROS
+    has them, so it finds the robot's drivers wherever ROS would (the same ROS_DOMAIN_ID, 0 when unset)."""
+    env = dict(environ)
+    if not robot:
+        env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        env.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
+    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "params" / "fastdds.xml"))
+    return env
+
+
 def launcher() -> list[str]:
     if shutil.which("ros2run"):
         return ["ros2run", "m2h_ros"]
@@ -207,6 +230,10 @@ def main(argv=None) -> int:
         raise SystemExit(f"run_pipeline: {args.out / 'bag'} exists; choose another --out")
     params = overrides(args)
     nodes = tuple(ROBOT_CONFIGS if args.robot else NODES)
+    try:
+        remaps = robot_remaps(driver_topics(args)) if args.robot else {}
+    except M2HError as exc:
+        raise SystemExit(f"run_pipeline: {exc}") from exc
     finisher = "episode_driver" if args.robot else "sim_node"  # its exit ends the run
     try:
         configs = node_configs(params)
@@ -215,12 +242,8 @@ def main(argv=None) -> int:
     except M2HError as exc:
         raise SystemExit(f"run_pipeline: {exc}") from exc
     (args.out / "logs").mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    env.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
-    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "params" / "fastdds.xml"))
-    print(f"[run] ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, run directory {args.out}", flush=True)
+    env = node_environment(os.environ, robot=args.robot)
+    print(f"[run] ROS_DOMAIN_ID={env.get('ROS_DOMAIN_ID', '0 (unset)')}, run directory {args.out}", flush=True)
     if args.live_view is not None:
         view = params["live_view_node"]  # --set may change the host or the port
         print(f"[run] live view: ws://{view.get('host', '127.0.0.1')}:{view['port']} (Foxglove: Open connection)",
@@ -238,7 +261,7 @@ def main(argv=None) -> int:
             command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
             for name in params[node]:  # typed as the config holds them: 5 for a float is 5.0, which ROS needs
                 command += ["-p", f"{name}:={ros_value(getattr(configs[node], name))}"]
-            for topic, to in ROBOT_REMAPS.get(node, ()) if args.robot else ():
+            for topic, to in remaps.get(node, ()):
                 command += ["-r", f"{topic}:={to}"]
             procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,
                                            # Sessions of their own: a Ctrl-C reaches them in stop order
@@ -254,6 +277,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         interrupted = True
         print("[run] interrupted: stopping every node", flush=True)
+        if "base_node" in procs:  # the robot first: zero velocity now, not after its move and the other nodes
+            stop(procs["base_node"])
         if finisher in procs:
             stop(procs[finisher])
     finally:

@@ -41,7 +41,11 @@ def episode_messages(bag: Path, episode: int) -> dict[str, list]:
     if not 0 <= episode < len(starts):
         raise ConfigError(f"{bag} holds {len(starts)} episode(s); --episode {episode} is not one of them")
     begin, end = starts[episode], starts[episode + 1] if episode + 1 < len(starts) else 2**63
-    return {t: [m for m in msgs if begin <= _stamp(m) < end] for t, msgs in by_topic.items()}
+    messages = {t: [m for m in msgs if begin <= _stamp(m) < end] for t, msgs in by_topic.items()}
+    if not messages.get(absolute(topics.MAP)):
+        raise ConfigError(f"{bag}: episode {episode} has no {absolute(topics.MAP)}, so no floor plan to draw (a robot "
+                          f"run's bag has none; scripts/make_video.py shows a robot run)")
+    return messages
 
 
 def draw(messages: dict[str, list], *, step: int, out: Path) -> Path:

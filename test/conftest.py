@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -151,7 +152,10 @@ def sound_sources() -> Path:
     root = sources_dir()
     try:
         check_sources(root)
-    except CacheError:
+    except CacheError as missing:
+        # Said, not silent: the run needs the network and some minutes once per data folder.
+        warnings.warn(f"fetching the sound sources for the tests of the real library ({missing}): "
+                      f"scripts/fetch_sound_sources.sh {root}", stacklevel=1)
         subprocess.run(["bash", str(ROOT / "scripts" / "fetch_sound_sources.sh"), str(root)], check=True)
     return root
 

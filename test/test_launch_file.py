@@ -83,14 +83,17 @@ def argument(entity: Entity, position: int, name: str):
     return entity.args[position] if len(entity.args) > position else entity.kwargs[name]
 
 
-def load(monkeypatch, path: Path) -> types.ModuleType:
+def load(monkeypatch, path: Path, *, installed: bool = False) -> types.ModuleType:
+    """The launch file at ``path`` over the stand-ins; its package share is the source tree, or with
+    ``installed`` the one the ament index finds (the built workspace's, as ``ros2 launch`` reads it)."""
     monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
     for name in STOOD_IN:
         monkeypatch.setitem(sys.modules, name, stand_in(name))
     monkeypatch.delitem(sys.modules, "m2h_ros.ros.launching", raising=False)  # imported again over the stand-ins
-    index = types.ModuleType("ament_index_python.packages")
-    index.get_package_share_directory = {"m2h_ros": str(ROOT)}.__getitem__  # the source tree's params/
-    monkeypatch.setitem(sys.modules, "ament_index_python.packages", index)
+    if not installed:
+        index = types.ModuleType("ament_index_python.packages")
+        index.get_package_share_directory = {"m2h_ros": str(ROOT)}.__getitem__  # the source tree's params/
+        monkeypatch.setitem(sys.modules, "ament_index_python.packages", index)
     spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -269,8 +272,27 @@ def test_launch_and_launch_ros_are_declared_and_the_recipes_installed():
     assert 'glob("params/recipes/*")' in (ROOT / "setup.py").read_text()
 
 
-def test_the_launch_file_is_installed_with_the_package():
-    assert 'glob("launch/*.launch.py")' in (ROOT / "setup.py").read_text()
+def test_the_installed_launch_files_start_the_installed_params(monkeypatch):
+    """What `ros2 launch m2h_ros FILE` runs: each launch file and params file of the source tree is in the
+    package share the ament index finds (setup.sh's colcon build), the same bytes, and each installed
+    launch file starts its nodes with the installed params files."""
+    from ament_index_python.packages import get_package_share_directory
+
+    share = Path(get_package_share_directory("m2h_ros"))
+    for pattern in ("launch/*.launch.py", "params/*.yaml", "params/*.xml", "params/recipes/*"):
+        sources = sorted(ROOT.glob(pattern))
+        assert sources, pattern
+        for source in sources:
+            installed = share / source.relative_to(ROOT)
+            assert installed.is_file(), f"{installed} is not installed: rebuild the workspace (scripts/setup.sh)"
+            assert installed.read_bytes() == source.read_bytes(), f"{installed} differs from {source}"
+    for name, expected in (("pipeline.launch.py", NODE_CONFIGS), ("robot.launch.py", ROBOT_CONFIGS)):
+        description = load(monkeypatch, share / "launch" / name, installed=True).generate_launch_description()
+        started = nodes(description)
+        assert list(started) == list(expected), name
+        for node_name, node in started.items():
+            files = [Path(p) for p in node.kwargs["parameters"] if isinstance(p, str | Path)]
+            assert files == [share / "params" / f"{node_name}.yaml"], (name, node_name)
 
 
 def test_the_live_view_is_opt_in(description, defaults):
@@ -294,16 +316,33 @@ def test_robot_mode_starts_the_robot_nodes_and_no_simulator(robot):
     for name, node in started.items():
         files = [p for p in node.kwargs["parameters"] if isinstance(p, str | Path)]
         assert [os.path.normpath(p) for p in files] == [str(ROOT / "params" / f"{name}.yaml")], name
-    remaps = {name: dict(node.kwargs["remappings"]) for name, node in started.items()}
+    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
+    remaps = {name: {topic: perform(to, defaults) for topic, to in node.kwargs["remappings"]}
+              for name, node in started.items()}
     assert remaps["capture_node"] == {topics.AUDIO: topics.MIC_AUDIO}  # frames to the episode driver
     assert remaps["audio_common_adapter"] == {topics.AUDIO: topics.MIC_AUDIO}
-    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
     for name, choice in (("capture_node", "capture"), ("audio_common_adapter", "audio_common")):
         (equals,) = started[name].kwargs["condition"].args
         assert equals.args[0].args == ("microphones",) and equals.args[1] == choice
     assert defaults["microphones"] == "capture"  # one of the two runs, the microphone by default
     assert remaps["controller_node"][topics.ODOM] == topics.STEP_ODOM
-    assert remaps["base_node"] == {}  # the robot's own odom and cmd_vel
+    # The robot's own odom and cmd_vel, under the pipeline's names unless the driver's are given
+    assert remaps["base_node"] == {topics.ODOM: topics.ODOM, topics.CMD_VEL: topics.CMD_VEL}
+
+
+def test_robot_mode_remaps_the_drivers_own_topic_names(robot):
+    defaults = {argument(a, 0, "name"): a.kwargs["default_value"] for a in of_kind(robot, "DeclareLaunchArgument")}
+    defaults.update(odom_topic="/wheel/odometry", cmd_vel_topic="/base/cmd_vel", rgb_topic="/head/color",
+                    depth_topic="/head/depth")
+    remaps = {name: {topic: perform(to, defaults) for topic, to in node.kwargs["remappings"]}
+              for name, node in nodes(robot).items()}
+    assert remaps["base_node"] == {topics.ODOM: "/wheel/odometry", topics.CMD_VEL: "/base/cmd_vel"}
+    assert remaps["episode_driver"] == {topics.ODOM: "/wheel/odometry", topics.RGB: "/head/color",
+                                        topics.DEPTH: "/head/depth"}
+    # The controller reads what the episode driver stamps with each step, whatever the driver's names.
+    assert remaps["controller_node"] == {topics.ODOM: topics.STEP_ODOM, topics.RGB: topics.STEP_RGB,
+                                         topics.DEPTH: topics.STEP_DEPTH}
+    assert remaps["capture_node"] == remaps["audio_common_adapter"] == {topics.AUDIO: topics.MIC_AUDIO}
 
 
 def test_robot_mode_arguments_reach_every_node_that_needs_them(robot):

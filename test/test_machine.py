@@ -1,39 +1,37 @@
-"""The benchmarks' measure of free cores."""
+"""The benchmarks' measure of free cores: the arithmetic over the workers' own timings (the timings
+reported by stand-ins, so the test asserts no wall-clock interval), and the line the benchmarks print."""
 
 import multiprocessing
-import time
+
+import pytest
 
 from m2h_ros import machine
 
-# Held by whichever worker is "on the core": stands in for two processes sharing one busy core.
-ONE_CORE = multiprocessing.get_context("fork").Lock()
-# Long beside a busy machine's process start-up: the second worker, started late by d seconds, still waits
-# HOLD_S - d for the core, so the reading stays near one (2 * HOLD_S / (2 * HOLD_S - d)).
-HOLD_S = 1.0
+# Calls of the stand-in workload so far, shared by the forked workers: the first runs alone, the next two
+# side by side (cores_available's two rounds).
+CALLS = multiprocessing.get_context("fork").Value("i", 0)
 
 
-def _waits(queue) -> None:
-    """A workload that needs no CPU: two of them take as long as one, whatever the machine's load."""
-    start = time.perf_counter()
-    time.sleep(HOLD_S)
-    queue.put(time.perf_counter() - start)
+def _reporting(alone: float, together: tuple[float, float]):
+    """A workload that reports ``alone`` seconds when run alone, then each of ``together`` when two run."""
+    def spin(queue) -> None:
+        with CALLS.get_lock():
+            call = CALLS.value
+            CALLS.value += 1
+        queue.put(alone if call == 0 else together[call - 1])
+    return spin
 
 
-def _waits_for_the_core(queue) -> None:
-    start = time.perf_counter()
-    with ONE_CORE:
-        time.sleep(HOLD_S)
-    queue.put(time.perf_counter() - start)
-
-
-def test_two_workers_that_run_side_by_side_read_two_cores(monkeypatch):
-    monkeypatch.setattr(machine, "_spin", _waits)
-    assert 1.6 < machine.cores_available() < 2.4
-
-
-def test_two_workers_that_share_one_core_read_one(monkeypatch):
-    monkeypatch.setattr(machine, "_spin", _waits_for_the_core)
-    assert 0.8 < machine.cores_available() < 1.2  # started one after the other, they would read 2.0
+@pytest.mark.parametrize("alone, together, cores", [
+    (1.0, (1.0, 1.0), 2.0),   # two workers side by side take as long as one: two cores
+    (1.0, (1.0, 2.0), 1.0),   # the second waits for the first: they share one core (the slower one counts)
+    (0.5, (0.8, 0.6), 1.25),  # a busy second core
+])
+def test_the_reading_is_two_times_one_workers_time_over_the_slower_of_two(monkeypatch, alone, together, cores):
+    CALLS.value = 0
+    monkeypatch.setattr(machine, "_spin", _reporting(alone, together))
+    assert machine.cores_available() == pytest.approx(cores)
+    assert CALLS.value == 3  # one alone, then two at once
 
 
 def test_the_line_names_the_scheduler(monkeypatch, tmp_path):

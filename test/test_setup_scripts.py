@@ -1,12 +1,15 @@
 """The set-up scripts: setup.sh takes Python 3.11 or 3.12 only; setup_distro.sh against a stand-in for
-/opt/ros/jazzy (no apt ROS here): a venv that sees the distro's packages and that colcon ignores, the
-non-ROS pins, colcon run by the venv's Python, and an env.sh that brings it all together. The pip step
-and the smoke check of the real libraries are stood in for; they need a real Jazzy."""
+/opt/ros/jazzy: a venv that sees the distro's packages and that colcon ignores, the non-ROS pins, colcon
+run by the venv's Python, and an env.sh that brings it all together. The pip step and the smoke check of
+the real libraries are stood in for; they need a real Jazzy. Nothing here depends on which Pythons the
+machine has: the other versions are this interpreter answering with another version, and the system's
+Python is the interpreter this venv was made from, alone on PATH."""
 
 import json
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,22 +18,31 @@ from m2h_ros.paths import REPO_DIR
 
 SETUP = REPO_DIR / "scripts" / "setup.sh"
 DISTRO = REPO_DIR / "scripts" / "setup_distro.sh"
-PYENV = Path("/root/.pyenv/versions")
+# A Python of another version as setup.sh sees it: this interpreter, reporting that version.
+_OTHER_VERSION = """#!{executable}
+import sys
+sys.version_info = ({major}, {minor}, 0, "final", 0)
+if sys.argv[1:2] == ["-c"]:
+    code, sys.argv = sys.argv[2], ["-c", *sys.argv[3:]]
+    exec(code)
+"""
 
 
-def _interpreter(version: str) -> Path:
-    found = sorted(PYENV.glob(f"{version}.*/bin/python{version}"))
-    if not found:
-        pytest.skip(f"no Python {version} on this machine")
-    return found[-1]
+def _interpreter(version: str, folder: Path) -> Path:
+    major, minor = version.split(".")
+    path = folder / f"python{version}_stand_in"
+    path.write_text(_OTHER_VERSION.format(executable=sys.executable, major=major, minor=minor))
+    path.chmod(0o755)
+    return path
 
 
 @pytest.mark.parametrize("version", ["3.10", "3.13"])
 def test_setup_refuses_pythons_the_ros_wheels_are_not_built_for(version, tmp_path):
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
+    wrong = _interpreter(version, tmp_path)
     for name in ("python3", "python3.11", "python3.12"):  # every candidate is the wrong one
-        (bin_dir / name).symlink_to(_interpreter(version))
+        (bin_dir / name).symlink_to(wrong)
     # A copy outside the repository: were a wrong Python accepted, the set-up would stop at once in an
     # empty folder instead of installing into the repository.
     (tmp_path / "scripts").mkdir()
@@ -68,14 +80,21 @@ def stand_in_ros(tmp_path):
     return root / "setup.bash"
 
 
-DISTRO_PYTHON = Path("/usr/bin/python3")  # Debian's: a system Python with no ROS, as on a fresh robot
+# The system's Python of a fresh robot: one with no ROS and outside any venv (this venv's base interpreter).
+DISTRO_PYTHON = Path(sys._base_executable).resolve()
+SYSTEM_BIN: list[Path] = []  # a folder holding only python3 (the system's), made once per session
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _system_bin(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("system_bin")
+    (folder / "python3").symlink_to(DISTRO_PYTHON)
+    SYSTEM_BIN[:] = [folder]
 
 
 def _clean_env(setup: Path) -> dict[str, str]:
-    """No venv, no PYTHONPATH: the shell of a robot whose only Python is the system's."""
-    if not DISTRO_PYTHON.is_file():
-        pytest.skip("no /usr/bin/python3")
-    return {"PATH": "/usr/bin:/bin", "HOME": os.environ["HOME"], "M2H_ROS_SETUP": str(setup)}
+    """No venv, no PYTHONPATH: the shell of a robot whose only Python is the system's, first on PATH."""
+    return {"PATH": f"{SYSTEM_BIN[0]}:/usr/bin:/bin", "HOME": os.environ["HOME"], "M2H_ROS_SETUP": str(setup)}
 
 
 def _distro(script: str, setup: Path, *, cwd: Path) -> subprocess.CompletedProcess:
@@ -101,7 +120,9 @@ def test_the_distro_recipe_builds_a_workspace_with_a_venv_that_sees_the_distro(s
     assert (ws / "venv" / "COLCON_IGNORE").is_file()
     seen = subprocess.run([str(venv_python), "-c", "import sys; print('\\n'.join(sys.path))"],
                           env=_clean_env(stand_in_ros), capture_output=True, text=True, check=True).stdout.split()
-    assert "/usr/lib/python3/dist-packages" in seen  # where apt puts python3-* modules
+    system = subprocess.run([str(DISTRO_PYTHON), "-c", "import site; print('\\n'.join(site.getsitepackages()))"],
+                            capture_output=True, text=True, check=True).stdout.split()
+    assert set(system) <= set(seen)  # where apt puts python3-* modules (/usr/lib/python3/dist-packages on Debian)
     # The pins go into the venv, without the ROS wheels, colcon or the setuptools pin.
     assert (ws / "pins_python").read_text().strip() == str(venv_python)
     pins = (ws / "pins.txt").read_text().split("\n")

@@ -271,7 +271,7 @@ def write_results(results: Sequence[EpisodeResult], out_dir: str | Path, *, titl
             "with the clean target's phase vs the dry target (the paper's reported variant); SI-SDR "
             "(mixture phase): rebuilt with the mixture's phase (deployable); STFT distance: the original "
             "code's, the estimate with the target's phase vs the target's spectrogram, mean squared "
-            "real/imaginary difference (tables without this sentence used a Frobenius norm).\n")
+            "real/imaginary difference.\n")
     how = (f"Command: `{command}`\n\n" if command else "") + (f"Setup: {setup}\n\n" if setup else "")
     paired = paired_differences(results, reference=reference, by=by) if reference else []
     versus = f"\n{paired_section(paired, reference=reference, by=by)}" if paired else ""

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from m2h_ros.errors import M2HError
 from m2h_ros.experiments.sweep import Condition, Sweep, estimate_pairs, run_sweep, write_sweep
-from m2h_ros.paths import REPO_DIR, file_sha256, repo_relative
+from m2h_ros.paths import RUNS_DIR, file_sha256, repo_relative
 
 
 def _separators(conditions: Sequence[Condition]) -> dict:
@@ -30,7 +30,7 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
                controllers: str = "stand_in_place,move2hear_quality", task: str = "near_target",
                sound_split: str = "heard,unheard", reference: str | None = "stand_in_place",
                condition_reference: str | None = None) -> int:
-    """Parse, run the sweep, write ``docs/results/experiments/<script stem>/`` (or --out); 2 on a clear error.
+    """Parse, run the sweep, write ``runs/experiments/<script stem>/`` (or --out); 2 on a clear error.
     ``script``: the script's ``__file__`` (in ``scripts/experiments/`` of the repository);
     ``reference`` / ``condition_reference``: the paired comparisons of :func:`write_sweep` (the reference
     controller only where the sweep plays it)."""
@@ -44,7 +44,9 @@ def sweep_main(argv: Sequence[str] | None, *, script: str, doc: str, title: str,
     parser.add_argument("--workers", type=int, default=2, help="local Ray CPUs (ignored with --address)")
     parser.add_argument("--address", help="an existing Ray cluster ('auto': the one this machine is in)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the stochastic controllers")
-    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "experiments" / Path(script).stem)
+    parser.add_argument("--out", type=Path, default=RUNS_DIR / "experiments" / Path(script).stem,
+                        help="output folder (default: %(default)s; the committed tables are under "
+                             "docs/results/experiments/, written only when --out names them)")
     parser.add_argument("--separator", type=Path,
                         help="separator checkpoint of the conditions that name none (default: the shipped one; "
                              "m2h_ros/models/default/separator_compact_pretrained.pt re-runs a table made with the "

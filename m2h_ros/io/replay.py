@@ -259,8 +259,8 @@ class _Replayer:
         c.replayed_only += len(self.replayed_steps) + len(self.replayed_episodes)
         if c.steps and _only_stft_distance_differs(c):
             self.notes.append("every live STFT distance differs while every SI-SDR agrees: the bag was most likely "
-                              "recorded with an older STFT distance (a Frobenius norm; today's is the "
-                              "original code's, docs/design/separator.md)")
+                              "recorded by a 0.x version, whose STFT distance was a Frobenius norm (this "
+                              "version's is the original code's, docs/design/separator.md)")
         return BagReplay(self.bag, self.results, c, self.problems, self.notes, self.stream.stats,
                          self.steps_scored)
 

@@ -2,7 +2,7 @@
 """Diagnostic: what walking to the target's node gains over standing still, with ground-truth knowledge.
 
     python scripts/experiments/approach_oracle.py [--task near_target] [--sound-split heard,unheard]
-        [--count 500] [--threads 2] [--checkpoint SEPARATOR] [--hold stand,turn] [--out docs/results/diagnostics/approach_oracle]
+        [--count 500] [--threads 2] [--checkpoint SEPARATOR] [--hold stand,turn] [--out runs/diagnostics/approach_oracle]
 
 Plays Stand In-Place and :class:`m2h_ros.experiments.oracle.ApproachOracle` (a shortest path to the
 target's node, read from the episode file, then holding there) on the same test episodes with the
@@ -34,7 +34,7 @@ from m2h_ros.experiments.oracle import ApproachOracle  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-from m2h_ros.paths import REPO_DIR, file_label, repo_relative  # noqa: E402
+from m2h_ros.paths import RUNS_DIR, file_label, repo_relative  # noqa: E402
 
 REFERENCE = "stand_in_place"
 
@@ -50,7 +50,8 @@ def main(argv=None) -> int:
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="separator checkpoint")
     parser.add_argument("--hold", default="stand", help="how the oracle holds on the target's node, comma-separated: "
                         "stand (Stop, as Stand In-Place) and/or turn (TurnLeft each step, as pi^Q can)")
-    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "diagnostics" / "approach_oracle")
+    parser.add_argument("--out", type=Path, default=RUNS_DIR / "diagnostics" / "approach_oracle",
+                        help="output folder (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     command = shlex.join(["python", "scripts/experiments/approach_oracle.py", *(sys.argv[1:] if argv is None else argv)])

@@ -3,7 +3,7 @@
 
     python scripts/experiments/backbone.py [--unet runs/backbone/unet_equal_budget.pt]
         [--mmdensenet runs/backbone/mmdensenet.pt] [--controllers stand_in_place,doa,move2hear_quality]
-        [--sound-split heard,unheard] [--count 200] [--workers 2] [--address ADDR] [--out docs/results/experiments/backbone]
+        [--sound-split heard,unheard] [--count 200] [--workers 2] [--address ADDR] [--out runs/experiments/backbone]
 
 Three separators, each a condition: the shipped compact U-Net (``m2h_ros/models/default``), a compact
 U-Net trained with the experiment's smaller budget, and the MMDenseNet-style separator trained with

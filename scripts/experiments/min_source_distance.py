@@ -3,7 +3,7 @@
 
     python scripts/experiments/min_source_distance.py [--distances 2,4,6,8] [--task near_target]
         [--sound-split heard,unheard] [--controllers stand_in_place,move2hear_quality] [--count 200]
-        [--workers 2] [--address ADDR] [--out docs/results/experiments/min_source_distance]
+        [--workers 2] [--address ADDR] [--out runs/experiments/min_source_distance]
 
 Test episodes are drawn (the standard generator, test scenes) with every pair of sources at least
 the given geodesic distance apart (8 m is the author's default and the standard test set's); each

@@ -2,7 +2,7 @@
 """Experiment 7 of the supplementary material: navigation to the target among distractors (SR, SPL).
 
     python scripts/experiments/navigation.py [--controllers random,move_forward,gan_et_al,av_navigator,move2hear_navigation]
-        [--sound-split heard] [--count 100] [--workers 2] [--address ADDR] [--out docs/results/experiments/navigation]
+        [--sound-split heard] [--count 100] [--workers 2] [--address ADDR] [--out runs/experiments/navigation]
 
 Far-target test episodes; each controller must reach the target's node and Stop there (success);
 SPL weighs a success by shortest path / path taken. Two splits: *standard* (any target and

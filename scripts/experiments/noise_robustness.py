@@ -3,7 +3,7 @@
 
     python scripts/experiments/noise_robustness.py [--levels 0,0.05,0.1,0.2] [--task near_target,far_target]
         [--sound-split heard,unheard] [--controllers stand_in_place,move2hear_quality] [--count 200]
-        [--workers 2] [--address ADDR] [--out docs/results/experiments/noise_robustness]
+        [--workers 2] [--address ADDR] [--out runs/experiments/noise_robustness]
 
 Each controller plays the first ``--count`` test episodes of each task x sound split at each
 microphone noise level (white noise per ear, std = level x the clean mixture's RMS: 0.05 / 0.1 / 0.2

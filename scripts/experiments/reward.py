@@ -3,7 +3,7 @@
 
     python scripts/experiments/reward.py --runs runs/reward/nmse,runs/reward/snr,runs/reward/si_sdr
         [--sound-split heard,unheard] [--count 100] [--chunk 50] [--workers 2] [--address ADDR]
-        [--seed 0] [--out docs/results/experiments/reward/stage2]
+        [--seed 0] [--out runs/experiments/reward/stage2]
 
 Train the runs first, one per reward, with the same seed and budget (docs/design/experiments.md):
 
@@ -31,7 +31,7 @@ from m2h_ros.core.results import (markdown_table, paired_differences, paired_tab
 from m2h_ros.errors import M2HError  # noqa: E402
 from m2h_ros.experiments import reward  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
-from m2h_ros.paths import REPO_DIR, repo_relative  # noqa: E402
+from m2h_ros.paths import RUNS_DIR, repo_relative  # noqa: E402
 
 
 def main() -> int:
@@ -43,7 +43,8 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2, help="local Ray CPUs (ignored with --address)")
     parser.add_argument("--address", help="an existing Ray cluster")
     parser.add_argument("--seed", type=int, default=0, help="seed of pi^Q's sampled actions")
-    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "experiments" / "reward")
+    parser.add_argument("--out", type=Path, default=RUNS_DIR / "experiments" / "reward",
+                        help="output folder (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
     command = shlex.join(["python", repo_relative(__file__), *sys.argv[1:]])

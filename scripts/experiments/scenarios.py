@@ -3,7 +3,7 @@
 
     python scripts/experiments/scenarios.py [--scenarios S-vs-S,S-vs-M,S-vs-B,M-vs-B] [--sound-split heard,unheard]
         [--controllers stand_in_place,move2hear_quality] [--count 200] [--workers 2] [--address ADDR]
-        [--out docs/results/experiments/scenarios]
+        [--out runs/experiments/scenarios]
 
 Near-target test episodes whose target and distractor are of the given categories (S speech, M
 music, B background); each controller plays the first ``--count`` of each. The paper's finding

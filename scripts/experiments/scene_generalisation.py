@@ -34,7 +34,7 @@ from m2h_ros.experiments.reach import geodesic_trace, walk_group  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
-from m2h_ros.paths import REPO_DIR  # noqa: E402
+from m2h_ros.paths import RUNS_DIR  # noqa: E402
 from m2h_ros.training.ppo_config import TRAIN_FAR_STEPS  # noqa: E402
 
 TRAINING_SEED = 0  # the shipped far-target recipes' episode seed (params/recipes/*.args)
@@ -69,7 +69,8 @@ def main(argv=None) -> int:
     parser.add_argument("--step", type=int, default=80, help="distance gained by this step (T^N)")
     parser.add_argument("--slots", type=int, default=8)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=REPO_DIR / "docs" / "results" / "scene_generalisation")
+    parser.add_argument("--out", type=Path, default=RUNS_DIR / "scene_generalisation",
+                        help="output folder (default: %(default)s)")
     args = parser.parse_args(argv)
     command = shlex.join(["python", "scripts/experiments/scene_generalisation.py", *(sys.argv[1:] if argv is None else argv)])
     started = time.perf_counter()

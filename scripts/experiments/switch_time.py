@@ -2,7 +2,7 @@
 """Experiment 3 of the supplementary material: the composite policy's switch time T^N (far-target).
 
     python scripts/experiments/switch_time.py [--switch-steps 0,20,40,60,80,100] [--sound-split heard,unheard]
-        [--scene-split test] [--count 200] [--workers 2] [--address ADDR] [--out docs/results/experiments/switch_time]
+        [--scene-split test] [--count 200] [--workers 2] [--address ADDR] [--out runs/experiments/switch_time]
 
 Move2Hear on far-target test episodes walks until step T^N, then improves the estimate with pi^Q
 (``move2hear``'s ``switch_step``); 100 is "no switch" (the walker throughout; the episode has 100 steps), 0

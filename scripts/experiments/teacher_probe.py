@@ -26,7 +26,7 @@ from m2h_ros.core.world.episodes import TASKS, EpisodeConfig  # noqa: E402
 from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.machine import load_averages  # noqa: E402
 from m2h_ros.training.teacher_probe import collect_probe_data, fit_probe, ild_sign_accuracy  # noqa: E402
-from m2h_ros.paths import REPO_DIR  # noqa: E402
+from m2h_ros.paths import RUNS_DIR  # noqa: E402
 from m2h_ros.training.ppo import PPOTrainer  # noqa: E402
 from m2h_ros.training.ppo_config import TRAIN_FAR_STEPS, PPOConfig  # noqa: E402
 
@@ -37,10 +37,10 @@ def main(argv=None) -> int:
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--rollouts", type=int, default=60)
     parser.add_argument("--seed", type=int, default=5, help="episode draw and probe seed")
-    parser.add_argument("--out", type=Path, help="default docs/results/teacher_probe_<task>")
+    parser.add_argument("--out", type=Path, help="default runs/teacher_probe_<task>")
     args = parser.parse_args(argv)
     command = shlex.join(["python", "scripts/experiments/teacher_probe.py", *(sys.argv[1:] if argv is None else argv)])
-    out = args.out or REPO_DIR / "docs" / "results" / f"teacher_probe_{args.task}"
+    out = args.out or RUNS_DIR / f"teacher_probe_{args.task}"
     started = time.perf_counter()
     if args.rollouts < 2:
         raise ConfigError("--rollouts must be >= 2 (a fifth of the states is held out)")

@@ -30,10 +30,19 @@ def agents_data_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("agents_data")
 
 
+@pytest.fixture(scope="session")
+def sources_folder() -> Path:
+    """Where the sound sources and the HRTF are (not fetched: the tests of the real library ask for
+    ``sound_sources``, which fetches them; the others need only the HRTF scripts/setup.sh put there)."""
+    from m2h_ros.core.sounds.sources import sources_dir
+
+    return sources_dir()
+
+
 @pytest.fixture(autouse=True)
-def _data_dir(monkeypatch, agents_data_dir, sound_sources):
+def _data_dir(monkeypatch, agents_data_dir, sources_folder):
     monkeypatch.setenv("M2H_DATA_DIR", str(agents_data_dir))
-    monkeypatch.setenv("M2H_SOUND_SOURCES", str(sound_sources))  # the HRTF stays where it is
+    monkeypatch.setenv("M2H_SOUND_SOURCES", str(sources_folder))  # the HRTF stays where it is
 
 
 @pytest.fixture(scope="session")

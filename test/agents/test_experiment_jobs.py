@@ -2,6 +2,9 @@
 
 import dataclasses
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -10,6 +13,7 @@ from scipy import stats
 from m2h_ros.core.results import EpisodeResult, paired_differences
 from m2h_ros.errors import ConfigError
 from m2h_ros.experiments.jobs import EvalJob, run_eval_job, run_jobs
+from m2h_ros.paths import REPO_DIR
 from m2h_ros.experiments.sweep import (SWEEP_KEYS, Condition, Sweep, estimate_pairs, run_sweep, sweep_jobs, with_estimates,
                                        write_sweep)
 
@@ -166,3 +170,13 @@ def test_a_switch_step_sweep_sets_its_option_per_condition(sweeps_asked, tmp_pat
     assert list(sweep.controllers) == ["move2hear"] and list(sweep.tasks) == ["near_target"]
     assert [(c.label, c.controller, c.episodes) for c in sweep.conditions] == [
         ("T = 0", {"near_switch_step": 0}, {"scene_split": "val"}), ("T = 7", {"near_switch_step": 7}, {"scene_split": "val"})]
+
+
+@pytest.mark.parametrize("script", ["scenarios", "switch_time", "reward", "approach_oracle", "scene_generalisation"])
+def test_an_experiment_writes_under_runs_unless_told(script):
+    """A plain rerun must not overwrite the committed tables under docs/results/."""
+    result = subprocess.run([sys.executable, str(REPO_DIR / "scripts" / "experiments" / f"{script}.py"), "--help"],
+                            capture_output=True, text=True, timeout=120, env={**os.environ, "COLUMNS": "400"})
+    assert result.returncode == 0, result.stderr
+    assert f"{REPO_DIR / 'runs'}/" in " ".join(result.stdout.split()), result.stdout
+    assert "default: " + str(REPO_DIR / "docs") not in " ".join(result.stdout.split())

@@ -18,10 +18,15 @@ from m2h_ros.models.runner import SeparatorRunner
 # Step 0 of 24 far-target episodes (the mixtures poorest there): the separator's estimate over the mixture,
 # mean gain 2.21 dB (19 of 24 gain; asking for the other class: -7.2 dB).
 SEPARATOR_FLOOR_DB = 1.1
-# Five far-target episodes of 20 steps where Move2Hear (pi^N + Stop, seed 0) is known to move to hear
-# better: its final SI-SDR over Stand In-Place's, mean 4.40 dB (random actions: -0.99 dB).
-MOVE2HEAR_EPISODES = [0, 2, 4, 10, 11]
-MOVE2HEAR_FLOOR_DB = 2.2
+# Far-target floors, on the first EPISODES far-target episodes (not chosen by how a model does there), 20
+# steps, seed 0: half the mean gain of final SI-SDR over Stand In-Place's that the shipped model measures
+# (-s prints the figures). The near-target models' floors are on the test scenes, where they were trained
+# and evaluated: test/docs/test_results_reproduce.py.
+EPISODES = 12
+FLOORS_DB = {
+    "move2hear": 0.51,  # pi^N + Stop (policy_navigation.pt; pi^Q does not act far-target): +1.03 dB
+    "gan_et_al": 0.58,  # Gan et al. (locator.pt): +1.17 dB
+}
 
 
 @pytest.fixture(scope="module")
@@ -45,15 +50,17 @@ def test_the_shipped_separator_beats_the_mixture(far_episodes, small_library, en
     assert gain.mean() > SEPARATOR_FLOOR_DB
 
 
-def test_move2hear_hears_better_than_standing_still(far_episodes, small_library, env_config, separator):
-    episodes = [far_episodes[i] for i in MOVE2HEAR_EPISODES]
+@pytest.mark.parametrize("name", list(FLOORS_DB))
+def test_each_far_target_model_hears_better_than_standing_still(name, small_episodes, small_library, env_config,
+                                                                separator):
+    episodes = small_episodes(count=EPISODES, max_steps=20, task="far_target", library=small_library)
     config = dataclasses.replace(env_config, camera=True)
     final = {}
-    for name in ("stand_in_place", "move2hear"):
-        controller = make_controller(name, len(episodes), seed=0)
-        results = evaluate_controller(controller, SeparatorRunner(separator, len(episodes)), episodes, small_library,
+    for controller in ("stand_in_place", name):
+        results = evaluate_controller(make_controller(controller, len(episodes), seed=0),
+                                      SeparatorRunner(separator, len(episodes)), episodes, small_library,
                                       env_config=config, progress=False)
-        final[name] = np.array([r.final("si_sdr") for r in results])
-    gain = final["move2hear"] - final["stand_in_place"]
-    print(f"Move2Hear over Stand In-Place: {np.round(gain, 2).tolist()} dB, mean {gain.mean():+.2f}")
-    assert gain.mean() > MOVE2HEAR_FLOOR_DB
+        final[controller] = np.array([r.final("si_sdr") for r in results])
+    gain = final[name] - final["stand_in_place"]
+    print(f"far-target {name} over Stand In-Place: mean {gain.mean():+.2f} dB, {np.round(gain, 2).tolist()}")
+    assert gain.mean() > FLOORS_DB[name]

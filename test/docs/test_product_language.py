@@ -22,6 +22,16 @@ SKIP_SUFFIXES = {".png", ".jpg", ".jpeg", ".gif", ".mp4", ".wav", ".flac", ".npy
 DOCS_PATH = re.compile(r"""(?<![\w/.-])docs/[^\s`'"()\[\]|,;]+""")
 IN_COMMIT = re.compile(r"\bcommit `?[0-9a-f]{7,40}\b")
 BUILT = ("docs/_build",)  # written by the docs build, ignored by git
+# How the software came to be, which belongs in CHANGELOG.md: a commit named as where something is, a
+# comparison with an earlier state told as a story, a remark about the machine the text was written on.
+MAKING_OF = re.compile(
+    r"(?<![\w@/.-])(?=[0-9a-f]{7}\b)(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)[0-9a-f]{7}(?![\w-])"  # a short commit hash
+    r"|\bcommit `?[0-9a-f]{7,40}\b"
+    r"|\bused to be\b|\bit used to\b|\bnow runs\b|\bold output\b|\banother day\b|\bworth measuring again\b"
+    r"|\bafter a refactor\b|\bthese machines\b|\bhas no display\b|\(no display\)|\btarget is missed\b"
+    r"|tables without this sentence")
+# The changelog is the history; a vendored package names the upstream commit it was copied from.
+HISTORY_PLACES = ("CHANGELOG.md", "third_party/")
 THIS_FILE = Path(__file__).resolve().relative_to(REPO_DIR).as_posix()
 
 
@@ -66,6 +76,36 @@ def test_no_tracked_file_speaks_of_how_it_was_made(files):
         if hits:
             found[path] = hits[:3]
     assert not found, "work-period references:\n" + "\n".join(f"{p}: {h}" for p, hs in found.items() for h in hs)
+
+
+def making_of_hits(text: str) -> list[str]:
+    return [f"{number}: {line.strip()[:160]}" for number, line in enumerate(text.splitlines(), 1)
+            if MAKING_OF.search(line)]
+
+
+def test_the_making_of_patterns_find_history_and_pass_the_product():
+    # Built from parts, so this file does not hold what it looks for.
+    for diary in ("the result folder is in commit `6f0a" + "a1c`", "git show a9c9" + "376:m2h_ros/x.pt", "it used" + " to be",
+                  "as the project " + "now runs CUDA", "another " + "day 441 / 411", "(this machine has no " + "display)"):
+        assert making_of_hits(diary), diary
+    for product in ("sha256 28febfab8bc2", "home@1945bc8e06a4aa83", "acoustics v2 10638cd03a526cd3", "the separator is used to "
+                    "compute", "a deadbee", "1234567 steps"):
+        assert not making_of_hits(product), product
+
+
+def test_no_tracked_text_tells_how_it_was_made(files):
+    found = {}
+    for path in files:
+        if path.startswith(HISTORY_PLACES) or Path(path).suffix.lower() in SKIP_SUFFIXES | {".pt", ".csv", ".json"}:
+            continue
+        try:
+            hits = making_of_hits((REPO_DIR / path).read_text())
+        except UnicodeDecodeError:
+            continue
+        if hits:
+            found[path] = hits[:3]
+    assert not found, ("history in the product (say it in the present tense, with its evidence; history goes in "
+                       "CHANGELOG.md):\n" + "\n".join(f"{p}: {h}" for p, hs in found.items() for h in hs))
 
 
 def _named_docs_paths(text: str) -> set[str]:

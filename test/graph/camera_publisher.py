@@ -3,10 +3,12 @@
 them as RealSense's driver does instead: bgr8 colour and 16UC1 depth in millimetres, 0 where no reading."""
 
 import argparse
+import sys
 import array
 
 import numpy as np
 import rclpy
+from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import Image
 
 from m2h_ros import topics
@@ -29,12 +31,12 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=128)
     parser.add_argument("--hz", type=float, default=10.0)
     parser.add_argument("--driver", action="store_true", help="bgr8 and 16UC1 millimetres")
-    args = parser.parse_args()
+    args = parser.parse_args(remove_ros_args(sys.argv)[1:])  # --ros-args -r ...: a driver's own topic names
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (args.height, args.width, 3), dtype=np.uint8)
     depth = rng.uniform(0.5, 5.0, (args.height, args.width)).astype(np.float32)
     depth[::7, ::5] = 0.0  # no reading
-    rclpy.init()
+    rclpy.init(args=sys.argv)
     node = rclpy.create_node("test_camera")
     pub_rgb, pub_depth = node.create_publisher(Image, topics.RGB, 10), node.create_publisher(Image, topics.DEPTH, 10)
 

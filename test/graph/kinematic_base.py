@@ -7,10 +7,12 @@ after the first non-zero twist (stale odometry).
 """
 
 import argparse
+import sys
 import time
 
 import numpy as np
 import rclpy
+from rclpy.utilities import remove_ros_args
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 
@@ -31,8 +33,8 @@ def main() -> None:
     parser.add_argument("--wall-x", type=float, default=float("inf"))
     parser.add_argument("--odom-hz", type=float, default=20.0)
     parser.add_argument("--odom-stops-after", type=float, default=None)
-    args = parser.parse_args()
-    rclpy.init()
+    args = parser.parse_args(remove_ros_args(sys.argv)[1:])  # --ros-args -r ...: a driver's own topic names
+    rclpy.init(args=sys.argv)
     node = rclpy.create_node("kinematic_base")
     base = KinematicBase(latency_s=args.latency, noise_m=args.noise_m, noise_rad=args.noise_rad, wall_x=args.wall_x)
     state = {"moving_since": None, "last": time.monotonic(), "next_odom": 0.0}

@@ -2,12 +2,22 @@
 pcm-s16 RawAudio of the mixture, the separated estimate and the target."""
 
 import numpy as np
+import pytest
+from rotations import rotation_matrix
 
 from m2h_ros import topics
 from m2h_ros.io.derived import PCM_GAIN, Derived
 from m2h_ros.io.mcap_stream import BagStream
 from m2h_ros.io.msg_defs import typestore
 from m2h_ros.io.synthetic import SyntheticRun, write_synthetic_run
+
+
+def _vector(v) -> np.ndarray:
+    return np.array([v.x, v.y, v.z])
+
+
+def _matrix(q) -> np.ndarray:
+    return rotation_matrix(q.x, q.y, q.z, q.w)
 
 
 def test_a_recorded_run_gets_its_tf_tree_and_audio_tracks(tmp_path):
@@ -22,13 +32,39 @@ def test_a_recorded_run_gets_its_tf_tree_and_audio_tracks(tmp_path):
     (static,) = extra["/tf_static"]
     parents = {t.child_frame_id: t.header.frame_id for t in static.transforms}
     assert parents == {"odom": "map", "head": "base_link", "camera": "head"}
+    # The static frames in full: map = odom, the head at the ears' height above the base, the camera's
+    # optical frame looking along the body's x with its x to the right and its y down.
+    height = recorded["/" + topics.AGENT_POSE][0].pose.position.z
+    static_at = {t.child_frame_id: (_vector(t.transform.translation), _matrix(t.transform.rotation))
+                 for t in static.transforms}
+    assert all(t.header.stamp == recorded["/" + topics.AGENT_POSE][0].header.stamp for t in static.transforms)
+    np.testing.assert_array_equal(static_at["odom"][0], [0, 0, 0])
+    np.testing.assert_array_equal(static_at["head"][0], [0, 0, height])
+    np.testing.assert_array_equal(static_at["camera"][0], [0, 0, 0])  # the camera at the ears
+    for child in ("odom", "head"):
+        np.testing.assert_allclose(static_at[child][1], np.eye(3), atol=1e-12)
+    optical = static_at["camera"][1]
+    np.testing.assert_allclose(optical @ [0, 0, 1], [1, 0, 0], atol=1e-12)  # optical z: forward
+    np.testing.assert_allclose(optical @ [1, 0, 0], [0, -1, 0], atol=1e-12)  # optical x: right
+    np.testing.assert_allclose(optical @ [0, 1, 0], [0, 0, -1], atol=1e-12)  # optical y: down
+    # Each step's odom -> base_link is the odometry's pose whole: position on the floor and the full
+    # rotation, the base's x axis along the robot's heading.
     assert len(extra["/tf"]) == len(recorded["/" + topics.ODOM])
+    headings = set()
     for tf, odom in zip(extra["/tf"], recorded["/" + topics.ODOM], strict=True):
         (t,) = tf.transforms
         assert (t.header.frame_id, t.child_frame_id, t.header.stamp) == ("odom", "base_link", odom.header.stamp)
-        assert (t.transform.translation.x, t.transform.translation.y) == (odom.pose.pose.position.x,
-                                                                          odom.pose.pose.position.y)
-        assert t.transform.rotation.z == odom.pose.pose.orientation.z
+        position, orientation = odom.pose.pose.position, odom.pose.pose.orientation
+        np.testing.assert_array_equal(_vector(t.transform.translation), [position.x, position.y, 0.0])
+        q = t.transform.rotation
+        assert (q.x, q.y, q.z, q.w) == pytest.approx((orientation.x, orientation.y, orientation.z, orientation.w),
+                                                     abs=1e-12) or (q.x, q.y, q.z, q.w) == pytest.approx(
+            (-orientation.x, -orientation.y, -orientation.z, -orientation.w), abs=1e-12)  # q and -q: one rotation
+        assert q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2 == pytest.approx(1.0)
+        np.testing.assert_allclose(_matrix(q), _matrix(orientation), atol=1e-12)
+        forward = _matrix(q) @ [1, 0, 0]
+        headings.add(round(float(np.degrees(np.arctan2(forward[1], forward[0]))) % 360))
+    assert len(headings) > 1  # the synthetic robot turns: more than one heading checked
     for source, field, channels in (("/" + topics.AUDIO, "samples", 2), ("/" + topics.SEPARATED_AUDIO, "samples", 1),
                                     (topics.GROUND_TRUTH, "target_monaural", 1)):
         tracks = extra[source + "/pcm"]

@@ -104,7 +104,7 @@ def test_a_bag_with_the_old_stft_distance_gets_a_note(tmp_path):
     write_synthetic_run(tmp_path / "bag", NEAR, live_score=frobenius_era)
     replay = replay_bag(tmp_path / "bag")
     assert {m.metric for m in replay.comparison.mismatches} == {"stft_distance", "episode_stft_distance"}
-    assert any("recorded with an older STFT distance" in note for note in replay.notes)
+    assert any("whose STFT distance was a Frobenius norm" in note for note in replay.notes)
     # one differing step is not the old definition: no note
     write_synthetic_run(tmp_path / "one", NEAR, live_score=lambda e, step, scores: frobenius_era(e, step, scores)
                         if step == 1 and e.endswith("000001") else scores)

@@ -16,9 +16,9 @@ An estimate is a monaural magnitude (..., F, T). It is rebuilt into a waveform t
 
 ``stft_distance`` is the original code's: the estimated magnitude with the dry target's phase against
 the dry target's complex spectrogram, mean squared over real and imaginary parts
-(:func:`~m2h_ros.core.audio.metrics.stft_distance`). Older tables and bags may hold a Frobenius norm of
-the STFT of the ground-truth-phase rebuild minus the target's instead: results tables say which in their
-note.
+(:func:`~m2h_ros.core.audio.metrics.stft_distance`). Tables and bags of the 0.x development versions
+may hold a Frobenius norm of the STFT of the ground-truth-phase rebuild minus the target's instead
+(CHANGELOG.md); ``m2h-eval`` says so when it meets one.
 """
 
 from __future__ import annotations

@@ -716,6 +716,10 @@ class MoveHearEnv(gymnasium.Env):
 
     ``reset(seed=..., options={"episode": Episode or index})`` plays a given episode; without it the
     next one of the seeded order. Actions: Discrete(4) = STOP, MOVE_FORWARD, TURN_LEFT, TURN_RIGHT.
+    Observations (``observation_space``): ``audio`` (2, 16000) binaural float32, ``pose`` (x, y, yaw),
+    ``node``, ``heading``, ``target_class``, ``step``, and with the camera ``rgb`` and ``depth``. ``info``
+    holds the ground truth for scoring and rewards, never for a policy: ``target_monaural``,
+    ``target_binaural``, ``target_delay``, ``geodesic_distance``, ``at_target``, ``success``.
     """
 
     metadata = {"render_modes": []}

@@ -60,7 +60,7 @@ _MADV_POPULATE_READ = 22   # Linux >= 5.14; Python's mmap module names it from 3
 def populate(array: np.ndarray) -> None:
     """Map every page of a :func:`load_mapped` array into this process now (``MADV_POPULATE_READ``,
     reading from disk what the page cache lacks), so that later work takes no page fault for them;
-    where the kernel lacks it, pages map on first touch as before."""
+    where the kernel lacks it, pages map on first touch."""
     base = array.base
     while base is not None and not isinstance(base, mmap.mmap):
         base = getattr(base, "base", None)

@@ -39,7 +39,7 @@ def serial(world, tmp_path_factory) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def ray_session():
-    ray = pytest.importorskip("ray")
+    import ray  # pinned in requirements.txt: a missing one is an error, not a skip
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     yield ray
     ray.shutdown()

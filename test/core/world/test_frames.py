@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from rotations import rotation_matrix
 
 from m2h_ros.core.world.frames import (FREE, OCCUPIED, UNKNOWN, base_transform, occupancy_grid, quaternion_yaw,
                                        static_transforms, twist)
@@ -15,10 +16,7 @@ def test_the_static_frames_chain_map_to_the_camera_optical_frame():
     assert (static["odom"].parent, static["head"].parent, static["camera"].parent) == ("map", "base_link", "head")
     assert static["head"].translation == (0.0, 0.0, 1.5) and static["camera"].translation[2] == pytest.approx(0.1)
     # The optical frame looks along the body's x with its own x to the body's right (-y), y down (-z).
-    x, y, z, w = static["camera"].rotation
-    rotation = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    rotation = rotation_matrix(*static["camera"].rotation)
     np.testing.assert_allclose(rotation @ [0, 0, 1], [1, 0, 0], atol=1e-12)  # optical z = forward
     np.testing.assert_allclose(rotation @ [1, 0, 0], [0, -1, 0], atol=1e-12)  # optical x = right
     np.testing.assert_allclose(rotation @ [0, 1, 0], [0, 0, -1], atol=1e-12)  # optical y = down

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import sofar
 
-from m2h_ros.core.world.acoustics import AcousticsConfig
+from m2h_ros.core.world.acoustics import AcousticsConfig, simulate_source
+from m2h_ros.core.world.scene import build_scene
 from m2h_ros.core.world.hrtf import diffuse_field_power, load_head, parse_head, third_octave_smooth
 from m2h_ros.errors import ConfigError, HeadError
 from m2h_ros.node_configs import SimConfig
@@ -252,6 +253,34 @@ def test_banks_are_keyed_by_the_heads_content_not_its_path(tmp_path):
     assert changed not in digests
     pairs = {AcousticsConfig(head=f"free_field:{s}").digest() for s in (0.1, 0.2)}
     assert len(pairs) == 2 and not pairs & (digests | {KEMAR_BANK_DIGEST})
+
+
+def _direct_sound_by_heading(head: str):
+    """(4, 2, E) early responses of a source 3 m along +x of the receiver (direct sound only), per heading."""
+    labels = np.zeros((6, 3), dtype=int)
+    scene = build_scene(labels, doors=[], surfaces=[("plasterboard", "carpet_cotton", "ceiling_plasterboard",
+                                                     (1.0, 0.0, 0.0))])
+    node = {tuple(xy): n for n, xy in enumerate(scene.grid.positions.tolist())}
+    config = AcousticsConfig(head=head, ism_max_order=0, tail=False, rir_length=0.25)
+    rows = simulate_source(scene, node[(4.5, 1.5)], config)
+    return rows[node[(1.5, 1.5)], : 4 * 2 * config.n_early].reshape(4, 2, config.n_early).astype(np.float64)
+
+
+def test_the_room_is_heard_through_the_chosen_head():
+    """The bank a scene is rendered into carries the chosen head's cues, heading by heading (heading h faces
+    h x 90 degrees from +x; the source lies along +x): a free-field pair's delay of its spacing and no level
+    difference; KEMAR's shorter delay and its head shadow. A renderer that ignored the setting fails."""
+    spacing = 0.4
+    pair, kemar = _direct_sound_by_heading(f"free_field:{spacing}"), _direct_sound_by_heading("kemar")
+    # The right ear lags the left by (spacing / c) x the source's leftward component in the head frame.
+    for heading, leftward in enumerate((0.0, -1.0, 0.0, 1.0)):
+        left, right = pair[heading]
+        assert _itd_seconds(left, right, 16000) == pytest.approx(spacing * leftward / C, abs=0.1e-3), heading
+        assert abs(_ild_db(left, right)) < 0.5, heading
+    for heading, side in ((1, -1.0), (3, 1.0)):  # the source at the right ear, then at the left
+        left, right = kemar[heading]
+        assert side * _itd_seconds(left, right, 16000) == pytest.approx(0.65e-3, abs=0.15e-3), heading
+        assert side * _ild_db(left, right) > 5.0, heading  # the head shadows the far ear
 
 
 def test_the_sim_setting_reaches_the_acoustics(tmp_path):
