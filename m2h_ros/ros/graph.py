@@ -6,6 +6,7 @@ from __future__ import annotations
 from rclpy.node import Node
 
 from m2h_ros import topics
+from m2h_ros.io.derived import absolute, derived_topics
 
 # The topics each pipeline node must be subscribed to before the first step.
 CONSUMERS = {
@@ -15,17 +16,20 @@ CONSUMERS = {
                        topics.COMMAND),
 }
 PIPELINE_TOPICS = tuple(value for name, value in vars(topics).items() if name.isupper())
+# What a recorder may leave to m2h-derive (keep_derived: false): not waited for. With keep_derived it
+# subscribes to them in the same discovery pass as to their nodes' other topics, which are waited for.
+DERIVED = frozenset(derived_topics())
 
 
 def missing_consumers(node: Node, expected: tuple[str, ...]) -> list[str]:
     """'node: topic, topic' for every expected node not yet subscribed to the topics it needs; the
-    recorder needs every pipeline topic that has a publisher."""
+    recorder needs every pipeline topic that has a publisher, but for those derived from the others."""
     subscribers: dict[str, set[str]] = {}
     published: list[str] = []
     for topic in PIPELINE_TOPICS:
         name = node.resolve_topic_name(topic)
         subscribers[topic] = {info.node_name for info in node.get_subscriptions_info_by_topic(name)}
-        if node.get_publishers_info_by_topic(name):
+        if node.get_publishers_info_by_topic(name) and absolute(topic) not in DERIVED:
             published.append(topic)
     missing = []
     for expected_node in expected:
