@@ -305,12 +305,12 @@ def test_free_running_counts_dropped_steps(small_library, small_data_dir, tmp_pa
 
 def test_replayed_bag_scores_equal_the_live_ones(tiny_run):
     """m2h-eval's core on the recorded bag: the evaluator's results exactly (same code, same data), also
-    with a batch's steps split between two threads."""
+    with the batches scored by two other processes."""
     from m2h_ros.io.replay import ReplayConfig, replay_bag
 
     out, _ = tiny_run
     live = read_results(out / "scores" / "results.json")
-    for config in (ReplayConfig(), ReplayConfig(score_threads=2)):
+    for config in (ReplayConfig(), ReplayConfig(score_processes=2)):
         replay = replay_bag(out / "bag", config=config)
         assert replay.problems == [] and replay.comparison.mismatches == [], \
             [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
