@@ -105,7 +105,8 @@ class SeparatorNode(Node):
         if self.pub_pcm is not None:
             self.pub_pcm.send(waveform, self.stft.sample_rate, stamp)
         self.pub_images[topics.MIXTURE_IMAGE].publish(
-            lambda: spectrogram_image_cdr(np.abs(stft(mixture, config=self.stft)), stamp_ns=stamp))
+            lambda: spectrogram_image_cdr(np.abs(out.mixture[1][0] if out.mixture else stft(mixture, config=self.stft)),
+                                          stamp_ns=stamp))
         for topic, magnitude in ((topics.BINAURAL_IMAGE, out.binaural[0]), (topics.MONAURAL_IMAGE, out.monaural[0]),
                                  (topics.REFINED_IMAGE, out.refined[0])):
             self.pub_images[topic].publish(lambda magnitude=magnitude: spectrogram_image_cdr(magnitude, stamp_ns=stamp))
