@@ -97,8 +97,8 @@ def main(argv=None) -> int:
               f"steps/s, in-process {local:.1f} steps/s, graph/in-process time ratio {local / graph:.2f} (target <= "
               f"{target}; graph target >= 30 steps/s); separator node {latency}; load average {load:.2f} -> "
               f"{os.getloadavg()[0]:.2f}", flush=True)
-        nodes = ", ".join(f"{node.removesuffix('_node')} {ms:.1f}" for node, ms in per_step.items())
-        print(f"  CPU ms per step: {nodes}; "
+        per_node = ", ".join(f"{node.removesuffix('_node')} {ms:.1f}" for node, ms in per_step.items())
+        print(f"  CPU ms per step: {per_node}; "
               f"graph total {sum(per_step.values()):.1f} vs in-process {local_cpu:.1f}", flush=True)
     return 0
 
