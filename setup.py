@@ -11,7 +11,8 @@ from m2h_ros.nodes.entry import NODES
 
 PACKAGE = "m2h_ros"
 CONSOLE_SCRIPTS = {**{node: f"{PACKAGE}.nodes.entry:{node}" for node in NODES},
-                   "m2h-separate": "m2h_ros.separate_cli:main", "m2h-eval": "m2h_ros.replay_cli:main"}
+                   "m2h-separate": "m2h_ros.separate_cli:main", "m2h-eval": "m2h_ros.replay_cli:main",
+                   "m2h-derive": "m2h_ros.derive_cli:main"}
 # setuptools' console scripts first scan every installed distribution's metadata for their entry point
 # (about 40 ms in this venv, in which a Ctrl-C printed a traceback); these import it directly.
 DIRECT_SCRIPT = """# {name}: the {package} console script, importing its entry point directly.

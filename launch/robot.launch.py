@@ -47,6 +47,7 @@ ARGUMENTS = (
     Argument("record_topics", "recorder_node", "topics"),
     Argument("record_exclude", "recorder_node", "exclude", default=ROBOT_EXCLUDE),
     Argument("record_max_rate_hz", "recorder_node", "max_rate_hz"),
+    Argument("keep_derived", "recorder_node", "keep_derived"),
     Argument("compression", "recorder_node", "compression", default=ROBOT_RECORDING["compression"]),
 )
 

@@ -150,6 +150,10 @@ class RecorderConfig(Config):
     compression: str = setting("none", "MCAP chunk compression: none, or zstd (as rosbag2's mcap storage presets "
                                "zstd_fast / zstd_small; Foxglove, ros2 bag and m2h-eval read it)",
                                choices=COMPRESSIONS)
+    keep_derived: bool = setting(False, "true: record the spectrogram pictures, pcm-s16 tracks, path and TF "
+                                 "as the run makes them (its subscriptions make the nodes build them every "
+                                 "step); false: leave them out, so nobody builds them, and let m2h-derive "
+                                 "(run_pipeline.py runs it after the run) add the same topics from the raw ones")
     discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01,
                                         max=60.0)
     flush_period_s: float = setting(0.25, "the open MCAP chunk is written to disk at least this often, "

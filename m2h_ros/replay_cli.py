@@ -1,8 +1,8 @@
 """``m2h-eval``: score recorded runs offline from their rosbag2 MCAP bags and check the live scores.
 
 ``m2h-eval runs/a runs/b --out eval/`` replays each bag (ours, or one of the same topics from
-``ros2 bag record -s mcap``; a bag whose recorder was killed is read up to its last complete chunk),
-recomputes every step's SI-SDR (ground-truth phase and mixture phase), STFT distance, SR and SPL from the
+``ros2 bag record -s mcap``; a bag whose recorder was killed is read up to its last complete chunk) on
+every core available, recomputes every step's SI-SDR (ground-truth phase and mixture phase), STFT distance, SR and SPL from the
 recorded estimates and ground truth, compares them with the scores the live evaluator recorded, and
 writes results.{md,csv,json}, comparison.{md,csv} and the SI-SDR-vs-step plots into ``--out``.
 
@@ -21,7 +21,7 @@ from pathlib import Path
 from m2h_ros.core.results import markdown_table, summarize
 from m2h_ros.core.world.worlds import load_world
 from m2h_ros.errors import BagError, ConfigError
-from m2h_ros.io.replay import BagReplay, ReplayConfig, replay_bags, write_replay
+from m2h_ros.io.replay import BagReplay, ReplayConfig, available_cores, replay_bags, write_replay
 
 EXIT_MISMATCH, EXIT_FATAL, EXIT_PROBLEMS = 1, 2, 3
 
@@ -37,10 +37,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"namespace the graph ran in (default: {defaults.namespace})")
     parser.add_argument("--atol", type=float, default=defaults.atol,
                         help=f"tolerance of replayed vs live scores (default: {defaults.atol:g})")
-    parser.add_argument("--threads", type=int, default=defaults.score_threads,
-                        help=f"threads scoring each batch of steps (same numbers; default: {defaults.score_threads})")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="bags replayed at once, one process each (same output; default: 1)")
+    parser.add_argument("--workers", type=int, default=available_cores(),
+                        help="processes: with as many bags, that many bags at once; with fewer, each bag read once "
+                             "and its steps scored by that many (same output; default: the cores available, "
+                             f"{available_cores()} here)")
     parser.add_argument("--no-plots", action="store_true", help="write tables only")
     parser.add_argument("--world", default="", metavar="SPEC",
                         help="the imported world the runs should have played in (map:PATH/map.yaml or mesh:PATH): "
@@ -64,7 +64,7 @@ def _one_line(text: str) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        config = ReplayConfig(namespace=args.namespace, atol=args.atol, score_threads=args.threads)
+        config = ReplayConfig(namespace=args.namespace, atol=args.atol)
         in_order = replay_bags(args.bags, config=config, workers=args.workers)
     except ConfigError as exc:
         print(f"m2h-eval: error: {_one_line(exc)}", file=sys.stderr)

@@ -14,8 +14,11 @@ Builds the data the episodes need first (sound library, episode file; RIR banks 
 built by the simulator on first use), starts every node with its params file from params/ (plus the
 overrides), waits for the simulator to finish its episodes, then stops the other nodes in order
 (SIGINT, wait, SIGKILL if one hangs) and prints the scores table and where the bag, the tables and the
-plot are. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/. Should this script
-itself be killed (SIGKILL, an out-of-memory kill), every node gets SIGTERM and stops: none outlives it.
+plot are. The recorder leaves out what is derived from other topics (spectrogram pictures, pcm-s16
+tracks, the path, TF), so no node builds it during the run; once the recorder has closed the bag, the
+same topics are added to it from the raw ones (m2h-derive), unless --set recorder_node.keep_derived=true
+recorded them live. Exit code 0 only if every node exited cleanly. Node logs go to OUT/logs/. Should this
+script itself be killed (SIGKILL, an out-of-memory kill), every node gets SIGTERM and stops: none outlives it.
 """
 
 from __future__ import annotations
@@ -35,7 +38,8 @@ from pathlib import Path
 import yaml
 
 from m2h_ros.core.world.worlds import canonical_spec
-from m2h_ros.errors import M2HError
+from m2h_ros.errors import BagError, M2HError
+from m2h_ros.io.derive_bag import derive_bag
 from m2h_ros.io.topic_selection import COMPRESSIONS
 from m2h_ros.node_configs import (DRIVER_TOPICS, MICROPHONES, NODE_CONFIGS, ROBOT_CONFIGS, robot_recording,
                                   robot_remaps)
@@ -301,6 +305,12 @@ def main(argv=None) -> int:
     print(f"[run] scores : {table if table.exists() else '(none)'}")
     plot = args.out / "scores" / "si_sdr_vs_step.png"
     print(f"[run] plot   : {plot if plot.exists() else '(none)'}")
+    if "recorder_node" in procs and procs["recorder_node"].returncode == 0 and not configs["recorder_node"].keep_derived:
+        try:
+            print(f"[run] derived: {derive_bag(args.out / 'bag').summary}", flush=True)
+        except BagError as exc:
+            failed["m2h-derive"] = 1
+            print(f"[run] m2h-derive: {exc}", file=sys.stderr)
     if not args.no_record:
         print(f"[run] bag    : {args.out / 'bag'}")
     print(f"[run] logs   : {args.out / 'logs'}")

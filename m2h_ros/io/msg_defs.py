@@ -13,6 +13,7 @@ installed as a Python or ament package, so they cannot shadow the real one where
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from functools import lru_cache
 from pathlib import Path
 
@@ -98,6 +99,20 @@ def _referenced(field: tuple) -> list[str]:
     if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
         return _referenced(detail[0])
     return []
+
+
+def add_types(store: Typestore, names: Iterable[str]) -> None:
+    """Register in ``store`` each of ``names`` and every type they refer to that it lacks, as this project's
+    typestore defines them (a store read from a bag holds only the bag's types)."""
+    ours, found = typestore(), {}
+    pending = list(names)
+    while pending:
+        name = pending.pop()
+        if name in store.fielddefs or name in found:
+            continue
+        found[name] = ours.fielddefs[name]
+        pending += [ref for _, field in found[name][1] for ref in _referenced(field)]
+    store.register(found)
 
 
 def ensure_known(store: Typestore, msgtype: str) -> None:

@@ -9,6 +9,12 @@ batches with :func:`~m2h_ros.core.audio.scoring.score_magnitude` and releases th
 episode with :class:`~m2h_ros.core.results.EpisodeTracker`, exactly as the live evaluator does. Memory
 holds at most a few open episodes' unscored steps, whatever the bag's length.
 
+On several cores (``ReplayConfig.score_processes``) this process still reads every chunk once and
+groups the steps, while child processes score the batches; their scores are taken in reading order,
+so the results are the same, bit for bit, as one process's. Should a batch fail to score there (an
+estimate with NaN), the bag is replayed again in one process, so that what is reported about it, and
+in which order, is what one process reports.
+
 Recomputed and live figures are compared at ``|replayed - live| <= atol`` (default 1e-3: dB for
 SI-SDR, the metric's own unit otherwise; booleans and step counts exactly). Problems with the bag
 (damaged, foreign, an episode that cannot be completed) are collected as BagErrors; everything else
@@ -20,9 +26,12 @@ from __future__ import annotations
 import csv
 import math
 import multiprocessing
+import os
+from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
-from dataclasses import dataclass, field, fields
+from concurrent.futures import Future, ProcessPoolExecutor
+from multiprocessing.shared_memory import SharedMemory
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -58,9 +67,9 @@ class ReplayConfig:
     namespace: str = "/"  # the graph's namespace: relative topic names resolve under it
     atol: float = 1e-3  # tolerance of replayed vs live figures
     batch_steps: int = 16  # complete steps scored together (speed); memory stays bounded by it
-    # Threads scoring a batch, its steps split between them (numpy and the FFTs run without the GIL):
-    # the same numbers; 2 uses a second core for the ~70% of a step that scoring takes.
-    score_threads: int = 1
+    # Processes scoring the batches while this one reads on (1: this one scores them): the same numbers;
+    # scoring is over half of a step's CPU time, reading the rest.
+    score_processes: int = 1
     # An unfinished episode is given up once this many newer ones have begun. In a pipeline bag the
     # separator and the evaluator run behind the simulator by up to the sim's max_evaluator_lag (<= 100
     # observations, ~5 near-target episodes), so an episode's last estimates can come after newer
@@ -72,8 +81,8 @@ class ReplayConfig:
             raise ConfigError(f"ReplayConfig.namespace must be absolute, got {self.namespace!r}")
         if not (self.atol >= 0 and math.isfinite(self.atol)):
             raise ConfigError(f"ReplayConfig.atol must be finite and >= 0, got {self.atol!r}")
-        if self.batch_steps < 1 or self.open_episodes < 1 or self.score_threads < 1:
-            raise ConfigError("ReplayConfig.batch_steps, open_episodes and score_threads must be >= 1")
+        if self.batch_steps < 1 or self.open_episodes < 1 or self.score_processes < 1:
+            raise ConfigError("ReplayConfig.batch_steps, open_episodes and score_processes must be >= 1")
 
     def topic(self, name: str) -> str:
         return name if name.startswith("/") else f"{self.namespace.rstrip('/')}/{name}"
@@ -171,6 +180,58 @@ class _Episode:
         return last
 
 
+@dataclass
+class _Batch:
+    """Steps of an episode handed to scoring: their scores, or a child process's promise of them and the
+    shared memory holding its arrays."""
+
+    episode: _Episode
+    group: list[tuple[int, _Step]]
+    scores: StepScores | Future
+    block: SharedMemory | None = None
+
+
+@dataclass
+class _End:
+    """An episode all of whose steps and actions were read: finished once its batches are applied."""
+
+    episode: _Episode
+
+
+class _Diverged(Exception):
+    """A batch failed to score in a child process: one process would have reported it elsewhere."""
+
+
+# A batch's arrays in a shared memory block: estimate (B, F, T), mixture (B, 2, N), the target's dry clip
+# (B, N) and as heard (B, 2, N), float32, one after the other. The scoring processes read them there: no
+# copy through a pipe (which cost as much as scoring saved).
+_ATTACHED: dict[str, SharedMemory] = {}  # in a scoring process: the blocks it has opened
+
+
+def _views(block: SharedMemory, shapes: Sequence[tuple[int, ...]]) -> list[np.ndarray]:
+    arrays, offset = [], 0
+    for shape in shapes:
+        arrays.append(np.ndarray(shape, np.float32, buffer=block.buf, offset=offset))
+        offset += 4 * math.prod(shape)
+    return arrays
+
+
+def _score_shared(name: str, shapes: Sequence[tuple[int, ...]], config: StftConfig) -> StepScores:
+    """score_magnitude of the batch in shared memory block ``name`` (run in a scoring process)."""
+    if name not in _ATTACHED:
+        _ATTACHED[name] = SharedMemory(name=name)
+    magnitude, mixture, monaural, binaural = _views(_ATTACHED[name], shapes)
+    return score_magnitude(magnitude, mixture, StepTruth(monaural, binaural), config=config)
+
+
+def _scoring_pool(processes: int) -> ProcessPoolExecutor | None:
+    if processes == 1:
+        return None
+    # Forked where the platform can: a child starts in milliseconds, not an import's seconds.
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    return ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context(method))
+
+
 def _pose_xy(msg) -> np.ndarray:
     return np.array([msg.pose.position.x, msg.pose.position.y], np.float64)
 
@@ -223,7 +284,13 @@ class _Replayer:
         self.usable: dict[str, bool] = {}  # bag topic -> its type is the expected, known one
         self.seen: dict[str, int] = {}
         self.steps_scored = 0
-        self.pool = ThreadPoolExecutor(config.score_threads - 1) if config.score_threads > 1 else None
+        self.order: dict[str, int] = {}  # episode id -> how many episodes began before it
+        self.pool = _scoring_pool(config.score_processes)
+        # Batches being scored and episode ends, applied in reading order; at most this many in flight.
+        self.pending: deque[_Batch | _End] = deque()
+        self.in_flight = 4 * config.score_processes
+        self.blocks: list[SharedMemory] = []  # every shared memory block made
+        self.free_blocks: list[SharedMemory] = []
 
     def problem(self, text: str) -> None:
         self.problems.append(BagError(f"{self.bag}: {text}"))
@@ -234,7 +301,10 @@ class _Replayer:
             return self._run()
         finally:
             if self.pool is not None:
-                self.pool.shutdown()
+                self.pool.shutdown(cancel_futures=True)
+            for block in self.blocks:
+                block.close()
+                block.unlink()
 
     def _run(self) -> BagReplay:
         for raw in self.stream.messages(topics=set(self.topic_of)):
@@ -253,8 +323,13 @@ class _Replayer:
                 self.problem(str(exc))
         for episode in list(self.open.values()):
             self._give_up(episode, "the bag ends before it does")
+        self._apply_pending(wait=True)
         self._summarise_topics()
         c = self.comparison
+        # In the order the episodes began and the steps came, however long each pair took to complete
+        rank = {name: k for k, name in enumerate([*METRICS, *(f"episode_{m}" for m in EPISODE_FIELDS)])}
+        c.mismatches.sort(key=lambda m: (self.order[m.episode_id], m.step is None, m.step or 0,
+                                         rank.get(m.metric, len(rank))))
         c.live_only += len(self.live_steps) + len(self.live_episodes)
         c.replayed_only += len(self.replayed_steps) + len(self.replayed_episodes)
         if c.steps and _only_stft_distance_differs(c):
@@ -292,6 +367,7 @@ class _Replayer:
         episode = self.open.get(episode_id)
         if episode is None and episode_id not in self.closed:
             episode = _Episode(episode_id, self.begun)
+            self.order[episode_id] = self.begun
             self.begun += 1
             self.open[episode_id] = episode
             for old in list(self.open.values()):
@@ -365,69 +441,92 @@ class _Replayer:
             episode.tracker.act(episode.next_act, episode.actions.pop(episode.next_act))
             episode.next_act += 1
         if done and episode.next_act == last:
-            self._finish(episode)
+            del self.open[episode.episode_id]
+            self.closed.add(episode.episode_id)
+            self.pending.append(_End(episode))
+            self._apply_pending(wait=False)
 
     def _score(self, episode: _Episode) -> bool:
-        """Scores the episode's ready steps; False if they cannot be (the episode is given up)."""
+        """Scores the episode's ready steps, here or in the scoring processes; False if they cannot be
+        (the episode is given up)."""
         ready, episode.ready = episode.ready, []
         try:
             groups = [ready] if len({(s.refined.shape, s.audio.shape, s.stft) for _, s in ready}) == 1 \
                 else [[item] for item in ready]
             for group in groups:
-                self._score_group(episode, group)
+                self.pending.append(self._batch(episode, group))
         except (AudioError, ConfigError) as exc:
             self._give_up(episode, f"steps {ready[0][0]}..{ready[-1][0]} cannot be scored ({exc})")
             return False
+        finally:
+            self._apply_pending(wait=False)
         return True
 
-    def _score_group(self, episode: _Episode, group: list[tuple[int, _Step]]) -> None:
+    def _batch(self, episode: _Episode, group: list[tuple[int, _Step]]) -> _Batch:
         parts = [s for _, s in group]
-        n = parts[0].audio.shape[-1]
         truths = [p.truth for p in parts]
-        truth = StepTruth(
-            target_monaural=np.stack([np.asarray(t.target_monaural, np.float32) for t in truths]),
-            target_binaural=np.stack([np.asarray(t.target_binaural, np.float32).reshape(2, -1) for t in truths]))
-        config = StftConfig(sample_rate=parts[0].stft.sample_rate, clip_samples=n)
-        scores = self._score_rows(np.stack([p.refined for p in parts]), np.stack([p.audio for p in parts]),
-                                  truth, config)
-        for row, (step, part) in enumerate(group):
+        rows = ([p.refined for p in parts], [p.audio for p in parts],
+                [np.asarray(t.target_monaural, np.float32) for t in truths],
+                [np.asarray(t.target_binaural, np.float32).reshape(2, -1) for t in truths])
+        config = StftConfig(sample_rate=parts[0].stft.sample_rate, clip_samples=parts[0].audio.shape[-1])
+        if self.pool is None:
+            magnitude, mixture, monaural, binaural = (np.stack(r) for r in rows)
+            return _Batch(episode, group, score_magnitude(magnitude, mixture, StepTruth(monaural, binaural),
+                                                          config=config))
+        shapes = [(len(parts), *r[0].shape) for r in rows]
+        block = self._block(sum(4 * math.prod(shape) for shape in shapes))
+        for view, r in zip(_views(block, shapes), rows, strict=True):
+            np.stack(r, out=view)
+        return _Batch(episode, group, self.pool.submit(_score_shared, block.name, shapes, config), block)
+
+    def _block(self, size: int) -> SharedMemory:
+        """A free shared memory block of at least ``size`` bytes (a new one if none is)."""
+        for k, block in enumerate(self.free_blocks):
+            if block.size >= size:
+                return self.free_blocks.pop(k)
+        block = SharedMemory(create=True, size=size)
+        self.blocks.append(block)
+        return block
+
+    def _apply_pending(self, *, wait: bool) -> None:
+        """Takes the scores and finishes the episodes of the pending work in reading order, as far as it
+        is done (all of it with ``wait``, or while more than ``in_flight`` items wait)."""
+        while self.pending:
+            item = self.pending[0]
+            if (not wait and len(self.pending) <= self.in_flight and isinstance(item, _Batch)
+                    and isinstance(item.scores, Future) and not item.scores.done()):
+                return
+            self.pending.popleft()
+            if isinstance(item, _End):
+                self._finish(item.episode)
+            else:
+                self._observe(item)
+
+    def _observe(self, batch: _Batch) -> None:
+        scores = batch.scores
+        if isinstance(scores, Future):
+            try:
+                scores = scores.result()
+            except (AudioError, ConfigError) as exc:
+                raise _Diverged(str(exc)) from exc
+            self.free_blocks.append(batch.block)
+        episode = batch.episode
+        for row, (step, part) in enumerate(batch.group):
             values = (float(scores.si_sdr[row]), float(scores.si_sdr_mixture_phase[row]),
                       float(scores.stft_distance[row]))
             episode.tracker.observe(step, si_sdr=values[0], si_sdr_mixture_phase=values[1],
                                     stft_distance=values[2], position=part.position,
                                     at_target=bool(part.truth.at_target))
             self._match_step((episode.episode_id, step), replayed=values)
-        self.steps_scored += len(group)
-
-    def _score_rows(self, magnitude: np.ndarray, mixture: np.ndarray, truth: StepTruth,
-                    config: StftConfig) -> StepScores:
-        """score_magnitude of a batch, its rows split between the threads (rows are scored independently:
-        the same numbers as one call)."""
-        if self.pool is None or len(magnitude) < 2:
-            return score_magnitude(magnitude, mixture, truth, config=config)
-        cuts = np.linspace(0, len(magnitude), min(self.config.score_threads, len(magnitude)) + 1).astype(int)
-        rows = [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
-
-        def score(r: slice) -> StepScores:
-            return score_magnitude(magnitude[r], mixture[r], StepTruth(truth.target_monaural[r],
-                                                                      truth.target_binaural[r]), config=config)
-
-        futures = [self.pool.submit(score, r) for r in rows[1:]]
-        try:
-            parts = [score(rows[0])] + [future.result() for future in futures]
-        except (AudioError, ConfigError):
-            for future in futures:
-                future.cancel()
-            return score_magnitude(magnitude, mixture, truth, config=config)  # raises what one call raises
-        return StepScores(*(np.concatenate([getattr(part, name.name) for part in parts]) for name in fields(StepScores)))
+        self.steps_scored += len(batch.group)
 
     def _finish(self, episode: _Episode) -> None:
-        del self.open[episode.episode_id]
-        self.closed.add(episode.episode_id)
         episode.tracker.result.controller = episode.controller or "unknown"
         try:
             result = episode.tracker.finish()
         except ConfigError as exc:
+            if self.pool is not None:  # found later than one process finds it
+                raise _Diverged(str(exc)) from exc
             self.problem(f"episode {episode.episode_id}: {exc}")
             return
         self.results.append(result)
@@ -485,7 +584,10 @@ class _Replayer:
 
 def replay_bag(path: str | Path, *, config: ReplayConfig = ReplayConfig()) -> BagReplay:
     """Score one recorded run from its bag; raises BagError only if nothing in it can be read."""
-    return _Replayer(Path(path), config).run()
+    try:
+        return _Replayer(Path(path), config).run()
+    except _Diverged:
+        return _Replayer(Path(path), replace(config, score_processes=1)).run()
 
 
 def _replay_or_error(path: Path, config: ReplayConfig) -> BagReplay | BagError:
@@ -495,24 +597,30 @@ def _replay_or_error(path: Path, config: ReplayConfig) -> BagReplay | BagError:
         return exc
 
 
+def available_cores() -> int:
+    """The CPUs this process may run on (its affinity mask, which containers and taskset narrow)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def replay_bags(paths: Iterable[str | Path], *, config: ReplayConfig = ReplayConfig(), workers: int = 1
                 ) -> Iterator[BagReplay | BagError]:
     """:func:`replay_bag` of each bag, yielded in the order given: its BagReplay, or the BagError of a bag
-    nothing of which can be read. ``workers`` > 1 replays that many bags at once, each in a child
-    process (forked where the platform can, so a child starts in milliseconds, not an import's
-    seconds): the same replays as one worker, in the same order."""
+    nothing of which can be read, on ``workers`` processes: with at least that many bags, that many bags
+    at once, each in a child process; with fewer, one bag after another, each read here and its steps
+    scored by ``workers`` processes. The same replays as one worker, in the same order."""
     if workers < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
     return _replays_in_order([Path(p) for p in paths], config, workers)
 
 
 def _replays_in_order(paths: list[Path], config: ReplayConfig, workers: int) -> Iterator[BagReplay | BagError]:
-    if workers == 1 or len(paths) < 2:
+    if workers == 1 or len(paths) < workers:
+        config = config if workers == 1 else replace(config, score_processes=workers)
         yield from (_replay_or_error(p, config) for p in paths)
         return
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
     # With fork, the pool forks all its children before it starts its own threads.
-    with ProcessPoolExecutor(min(workers, len(paths)), mp_context=multiprocessing.get_context(method)) as pool:
+    pool = _scoring_pool(workers)
+    with pool:
         yield from pool.map(_replay_or_error, paths, [config] * len(paths))
 
 

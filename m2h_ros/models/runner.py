@@ -48,11 +48,13 @@ class SeparationStep:
     then made on first use: the trainer feeds the tensors to the policy and reads only ``refined``."""
 
     def __init__(self, binaural: np.ndarray | None = None, monaural: np.ndarray | None = None,
-                 refined: np.ndarray | None = None, *, sliced: SlicedSeparation | None = None) -> None:
+                 refined: np.ndarray | None = None, *, sliced: SlicedSeparation | None = None,
+                 mixture: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self._arrays = {"binaural": binaural, "monaural": monaural, "refined": refined}
         if (sliced is None) == any(array is None for array in self._arrays.values()):
             raise ConfigError("a SeparationStep takes its three arrays or its sliced tensors")
         self.sliced = sliced
+        self.mixture = mixture  # the step's (B, 2, N) audio and its STFT, where the runner made it
 
     @property
     def binaural(self) -> np.ndarray:
@@ -79,7 +81,8 @@ class SeparationStep:
         target as heard, ear mean), or ``refined``, the refined estimate of the dry target rebuilt
         with the ear-mean mixture's phase."""
         if output == "masked_mixture":
-            return masked_mixture(self.binaural, mixture, config=config)
+            known = self.mixture is not None and np.array_equal(mixture, self.mixture[0])
+            return masked_mixture(self.binaural, mixture, config=config, spec=self.mixture[1] if known else None)
         if output == "refined":
             return rebuild_mixture_phase(self.refined, mixture, config=config)
         raise ConfigError(f"audio output {output!r}: one of {', '.join(AUDIO_OUTPUTS)}")
@@ -135,10 +138,12 @@ class SeparatorRunner:
         classes = torch.as_tensor(np.asarray(class_index, np.int64), device=self.device)
         index = torch.as_tensor(rows, device=self.device)
         with torch.inference_mode():
+            spec = None
             if self.pose_cache and keys is not None:
                 binaural, monaural = self._cached_front(audio, classes, reset, rows, keys)
             else:
-                binaural, monaural = self._front(audio, classes)
+                spec = stft(audio, config=config)
+                binaural, monaural = self._front(audio, classes, spec)
             memory = None if self.memory is None or reset.all() else self.memory[index]
             refined = self.separator.refine(monaural, memory,
                                             None if memory is None else torch.as_tensor(reset, device=self.device))
@@ -147,11 +152,15 @@ class SeparatorRunner:
                 self.memory = torch.zeros((self.n_slots, *refined.shape[1:]), device=self.device).contiguous(
                     memory_format=torch.channels_last)
             self.memory[index] = refined
-        return SeparationStep(sliced=SlicedSeparation(binaural, monaural, refined))
+        return SeparationStep(sliced=SlicedSeparation(binaural, monaural, refined),
+                              mixture=None if spec is None else (audio, spec))
 
-    def _front(self, audio: np.ndarray, classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """f^B and f^M: (separated binaural, monaural estimate), sliced (R, C, H, W)."""
-        sliced = network_input(stft(audio, config=self.loaded.stft), n_slices=self.loaded.stft.n_freq_slices)
+    def _front(self, audio: np.ndarray, classes: torch.Tensor,
+               spec: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """f^B and f^M: (separated binaural, monaural estimate), sliced (R, C, H, W); ``spec``: the STFT of
+        ``audio``, where the caller has it."""
+        spec = stft(audio, config=self.loaded.stft) if spec is None else spec
+        sliced = network_input(spec, n_slices=self.loaded.stft.n_freq_slices)
         _, binaural = self.separator.separate_binaural(sliced.to(self.device), classes)
         return binaural, self.separator.predict_monaural(binaural, classes)
 

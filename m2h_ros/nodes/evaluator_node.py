@@ -4,7 +4,8 @@ the results table (Markdown + CSV + JSON, and the SI-SDR-vs-step plot at shutdow
 
 Scores come from m2h_ros.core.audio.scoring and m2h_ros.core.results, the same code in-process
 evaluation and offline replay use: SI-SDR with the ground-truth phase (the paper's figure) and with
-the mixture's phase (deployable), STFT distance, and SR / SPL for far-target episodes."""
+the mixture's phase (deployable), STFT distance, and SR / SPL for far-target episodes. The target's
+spectrogram picture and pcm-s16 track are built only while something subscribes to them."""
 
 from __future__ import annotations
 
@@ -18,13 +19,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 from m2h_ros import topics
-from m2h_ros.core.audio.display import spectrogram_image
 from m2h_ros.core.audio.scoring import score_magnitude
 from m2h_ros.core.audio.stft import DEFAULT_STFT, stft
 from m2h_ros.core.results import HELD, EpisodeResult, EpisodeTracker, markdown_table, summarize, write_results
 from m2h_ros.node_configs import EvaluatorConfig
 from m2h_ros.ros import convert
+from m2h_ros.io.derived import spectrogram_image_cdr
 from m2h_ros.ros.introspection import raw_audio_publisher
+from m2h_ros.ros.on_demand import OnDemand, on_demand_summary
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events
 from m2h_ros.ros.spin import run_node
@@ -46,8 +48,8 @@ class EvaluatorNode(Node):
                                                  event_callbacks=publisher_events(self.get_logger(),
                                                                                   topics.EPISODE_SCORE))
         self.pub_pcm = raw_audio_publisher(self, topics.GROUND_TRUTH, STEP)  # where foxglove_msgs is installed
-        self.pub_target_image = self.create_publisher(
-            Image, topics.TARGET_IMAGE, STEP, event_callbacks=publisher_events(self.get_logger(), topics.TARGET_IMAGE))
+        self.pub_target_image = OnDemand(self.create_publisher(
+            Image, topics.TARGET_IMAGE, STEP, event_callbacks=publisher_events(self.get_logger(), topics.TARGET_IMAGE)))
 
         def subscribe(kind, topic, callback, qos=STEP):
             self.create_subscription(kind, topic, callback, qos,
@@ -81,10 +83,10 @@ class EvaluatorNode(Node):
         self.pub_step.publish(convert.step_score_msg(**values, geodesic_distance=truth_msg.geodesic_distance,
                                                      episode_id=episode_id, step=step, stamp_ns=stamp))
         truth_stamp = convert.nanoseconds_of(truth_msg.header.stamp)
-        target = np.abs(stft(truth.target_monaural[0], config=DEFAULT_STFT))
-        self.pub_target_image.publish(convert.spectrogram_image_msg(spectrogram_image(target), stamp_ns=truth_stamp))
+        self.pub_target_image.publish(lambda: spectrogram_image_cdr(
+            np.abs(stft(truth.target_monaural[0], config=DEFAULT_STFT)), stamp_ns=truth_stamp))
         if self.pub_pcm is not None:
-            self.pub_pcm(truth.target_monaural, truth_msg.sample_rate, truth_stamp)
+            self.pub_pcm.send(truth.target_monaural, truth_msg.sample_rate, truth_stamp)
         if step == 0:
             result = EpisodeResult(episode_id=episode_id, controller=self.controllers.get(episode_id, ""),
                                    task=info.task, sound_split=info.split, scene_id=info.scene_id,
@@ -134,6 +136,7 @@ class EvaluatorNode(Node):
                                                "episodes_scored": len(self.results), "complete": not state})
 
     def destroy_node(self) -> None:
+        print(f"evaluator_node: {on_demand_summary([self.pub_target_image, self.pub_pcm])}", flush=True)
         if self.output is not None and self.results:
             paths = self.write(final=True)
             state = self.completeness(final=True)

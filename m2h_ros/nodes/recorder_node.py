@@ -1,5 +1,10 @@
 """recorder_node: records topics of the graph, as raw CDR, into a rosbag2 MCAP bag.
 
+What is derived from other topics (spectrogram pictures, pcm-s16 tracks, the path, TF: io/derived.py)
+is left out unless keep_derived is true: then no node builds it during the run, and ``m2h-derive``
+adds the same topics to the bag afterwards. With keep_derived the recorder subscribes to them, and
+derives TF and the tracks itself where the graph lacks their packages.
+
 Stopping it with Ctrl-C or SIGTERM closes the bag properly, so a recording is never lost."""
 
 from datetime import datetime
@@ -10,7 +15,7 @@ from rclpy.node import Node
 
 from m2h_ros.errors import BagError
 from m2h_ros.io.bag import BagWriter
-from m2h_ros.io.derived import Derived, offered_qos as derived_qos
+from m2h_ros.io.derived import Derived, derived_topics, offered_qos as derived_qos
 from m2h_ros.io.topic_selection import TopicSelection
 from m2h_ros.node_configs import RecorderConfig
 from m2h_ros.ros.introspection import adapted_qos, definition_mismatch, offered_qos, offered_topics
@@ -47,8 +52,10 @@ class RecorderNode(Node):
         self.last_kept: dict[str, int] = {}  # topic -> receive time (ns) of its last message kept
         self.rate_dropped: dict[str, int] = {}  # topic -> messages left out by its rate limit
         self.held: list[tuple[str, bytes]] | None = []  # log lines before the first data; None once written
-        # TF and playable audio for the bag, derived from what is recorded (unless the graph publishes them)
-        self.derived = Derived(namespace=self.get_namespace())
+        # TF and playable audio for the bag, derived from what is recorded (unless the graph publishes them);
+        # without keep_derived, none of the derived topics (m2h-derive adds them from the raw ones).
+        self.derived = Derived(namespace=self.get_namespace()) if cfg.keep_derived else None
+        self.left_out = frozenset() if cfg.keep_derived else frozenset(derived_topics(self.get_namespace()))
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
         self.flusher = self.create_timer(self.config.flush_period_s, self.writer.flush)  # idle stretches too
         self.discover_topics()
@@ -57,7 +64,7 @@ class RecorderNode(Node):
     def discover_topics(self) -> None:
         for offer in offered_topics(self, known=self.recorded.keys() | IGNORED_TOPICS):
             topic, problem = offer.name, offer.problem
-            if not self.selection.records(topic):
+            if not self.selection.records(topic) or topic in self.left_out:
                 self.recorded[topic] = ""
                 continue
             if not problem:
@@ -99,6 +106,8 @@ class RecorderNode(Node):
             self.last_kept[topic] = now
         self.writer.write_raw(topic, self.recorded[topic], now, data)
         self.counts[topic] += 1
+        if self.derived is None:
+            return
         for extra, msgtype, extra_data in self.derived.feed(topic, self.recorded[topic], data):
             if extra in self.recorded or not self.selection.records(extra):  # the graph's own, or left out
                 continue

@@ -1,6 +1,8 @@
 """separator_node: f^B -> f^M -> f^R on each step's binaural audio; publishes the separated binaural,
 monaural and refined spectrograms, and audio to listen to (``audio_output``): by default f^B's mask on
 each ear of the mixture (the target as heard, ear mean), or the refined estimate with the mixture's phase.
+The spectrogram pictures and the audio's pcm-s16 track are built only while something subscribes to them
+(ros/on_demand.py); a bag gets them from ``m2h-derive`` otherwise.
 
 The refiner's memory restarts whenever the episode id changes. The target class comes from the
 episode's EpisodeInfo (a frame waits until its episode's info arrives) or, for a live microphone
@@ -21,8 +23,8 @@ from rclpy.node import Node  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
 from m2h_ros import topics  # noqa: E402
-from m2h_ros.core.audio.display import spectrogram_image  # noqa: E402
 from m2h_ros.core.audio.stft import stft  # noqa: E402
+from m2h_ros.io.derived import spectrogram_image_cdr  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.device import resolve_device  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
@@ -30,6 +32,7 @@ from m2h_ros.models.threads import inference_threads  # noqa: E402
 from m2h_ros.node_configs import SeparatorNodeConfig  # noqa: E402
 from m2h_ros.ros import convert  # noqa: E402
 from m2h_ros.ros.introspection import raw_audio_publisher  # noqa: E402
+from m2h_ros.ros.on_demand import OnDemand, on_demand_summary  # noqa: E402
 from m2h_ros.ros.params import declare_config  # noqa: E402
 from m2h_ros.ros.qos import LATCHED, STEP, publisher_events, subscription_events  # noqa: E402
 from m2h_ros.ros.spin import run_node  # noqa: E402
@@ -58,7 +61,7 @@ class SeparatorNode(Node):
         self.pub_refined = publisher(Spectrogram, topics.REFINED)
         self.pub_audio = publisher(BinauralAudio, topics.SEPARATED_AUDIO)
         self.pub_pcm = raw_audio_publisher(self, topics.SEPARATED_AUDIO, STEP)  # where foxglove_msgs is installed
-        self.pub_images = {topic: publisher(Image, topic) for topic in (
+        self.pub_images = {topic: OnDemand(publisher(Image, topic)) for topic in (
             topics.MIXTURE_IMAGE, topics.BINAURAL_IMAGE, topics.MONAURAL_IMAGE, topics.REFINED_IMAGE)}
         self.create_subscription(EpisodeInfo, topics.EPISODE, self.on_episode, LATCHED,
                                  event_callbacks=subscription_events(self.get_logger(), topics.EPISODE))
@@ -98,13 +101,15 @@ class SeparatorNode(Node):
         waveform = out.waveform(mixture[None], config=self.stft, output=self.config.audio_output)
         self.pub_audio.publish(convert.audio_msg(waveform, sample_rate=self.stft.sample_rate, **tag))
         self.latencies.append(time.perf_counter() - started)
-        # Pictures to look at and audio to hear, after everything the controller waits for.
+        # Pictures to look at and audio to hear (for whoever subscribes), after all the controller waits for.
         if self.pub_pcm is not None:
-            self.pub_pcm(waveform, self.stft.sample_rate, stamp)
-        pictures = {topics.MIXTURE_IMAGE: np.abs(stft(mixture, config=self.stft)), topics.BINAURAL_IMAGE: out.binaural[0],
-                    topics.MONAURAL_IMAGE: out.monaural[0], topics.REFINED_IMAGE: out.refined[0]}
-        for topic, magnitude in pictures.items():
-            self.pub_images[topic].publish(convert.spectrogram_image_msg(spectrogram_image(magnitude), stamp_ns=stamp))
+            self.pub_pcm.send(waveform, self.stft.sample_rate, stamp)
+        self.pub_images[topics.MIXTURE_IMAGE].publish(
+            lambda: spectrogram_image_cdr(np.abs(out.mixture[1][0] if out.mixture else stft(mixture, config=self.stft)),
+                                          stamp_ns=stamp))
+        for topic, magnitude in ((topics.BINAURAL_IMAGE, out.binaural[0]), (topics.MONAURAL_IMAGE, out.monaural[0]),
+                                 (topics.REFINED_IMAGE, out.refined[0])):
+            self.pub_images[topic].publish(lambda magnitude=magnitude: spectrogram_image_cdr(magnitude, stamp_ns=stamp))
 
     def destroy_node(self) -> None:
         if self.latencies:
@@ -112,6 +117,7 @@ class SeparatorNode(Node):
             # Printed, not logged: at Ctrl-C the context (and its rosout) may already be gone.
             print(f"separator_node: {len(ms)} steps, latency per step (message in to all out) "
                   f"p50 {np.median(ms):.1f} ms, p90 {np.percentile(ms, 90):.1f} ms", flush=True)
+        print(f"separator_node: {on_demand_summary([*self.pub_images.values(), self.pub_pcm])}", flush=True)
         super().destroy_node()
 
 

@@ -10,6 +10,7 @@ credit), so the evaluator never falls further behind than the step topics' histo
 run ends when every episode is scored. Without an evaluator, an episode's last observation waits for
 the separator's output, so nothing is cut off. Free-running: steps at rate_hz; a step
 whose command has not arrived holds the robot in place and is counted as dropped.
+The robot's path, its TF and the mixture's pcm-s16 track are built only while something subscribes.
 Exits with code 0 after the last episode."""
 
 from __future__ import annotations
@@ -29,11 +30,13 @@ from m2h_ros.core.world import frames
 from m2h_ros.core.world.env import N_ACTIONS
 from m2h_ros.core.world.player import EpisodePlayer, PlayerStep
 from m2h_ros.errors import PipelineError
+from m2h_ros.io.derived import path_markers_cdr
 from m2h_ros.io.msg_defs import TF_MESSAGE
 from m2h_ros.node_configs import SimConfig
 from m2h_ros.ros import convert
 from m2h_ros.ros.graph import missing_consumers
 from m2h_ros.ros.introspection import optional_message_class, raw_audio_publisher
+from m2h_ros.ros.on_demand import OnDemand, on_demand_summary
 from m2h_ros.ros.params import declare_config
 from m2h_ros.ros.qos import LATCHED, LATEST, STEP, TF, publisher_events, subscription_events, wait_for_delivery
 from m2h_ros.ros.spin import RunFinished, run_node
@@ -66,12 +69,12 @@ class SimNode(Node):
         self.pub_pose = publisher(AgentPose, topics.AGENT_POSE)
         self.pub_truth = publisher(GroundTruth, topics.GROUND_TRUTH)
         self.pub_map = publisher(OccupancyGrid, topics.MAP, LATEST)
-        self.pub_path = publisher(MarkerArray, topics.PATH)
+        self.pub_path = OnDemand(publisher(MarkerArray, topics.PATH))
         self.pub_sources = publisher(MarkerArray, topics.SOURCES)
         # TF where tf2_msgs is installed; elsewhere the recorder writes the same tree into the bag.
         self.tf_message = optional_message_class(TF_MESSAGE)
+        self.pub_tf = None if self.tf_message is None else OnDemand(publisher(self.tf_message, topics.TF, TF))
         if self.tf_message is not None:
-            self.pub_tf = publisher(self.tf_message, topics.TF, TF)
             self.pub_tf_static = publisher(self.tf_message, topics.TF_STATIC, LATEST)
         self.maps: dict[str, frames.OccupancyGrid] = {}  # scene fingerprint -> its grid
         self.path: list[tuple[float, float]] = []  # the robot's positions this episode
@@ -233,14 +236,14 @@ class SimNode(Node):
         # The mixture first: the separator (the longest stage) starts while the rest goes out.
         self.pub_audio.publish(convert.audio_msg(obs["audio"][0], sample_rate=self.sample_rate, **tag))
         if self.pub_pcm is not None:
-            self.pub_pcm(obs["audio"][0], self.sample_rate, stamp)
+            self.pub_pcm.send(obs["audio"][0], self.sample_rate, stamp)
         pose = obs["pose"][0]
         previous = None if episode_start else self.last_pose
         twist = frames.twist(previous[0], pose, (stamp - previous[1]) / 1e9) if previous else (0.0, 0.0, 0.0)
         self.last_pose = (pose, stamp)
         self.pub_odom.publish(convert.odometry_msg(pose, twist=twist, stamp_ns=stamp))
-        if self.tf_message is not None:
-            self.pub_tf.publish(self.tf_message(transforms=convert.transform_msgs(
+        if self.pub_tf is not None:
+            self.pub_tf.publish(lambda: self.tf_message(transforms=convert.transform_msgs(
                 [frames.base_transform(pose)], stamp_ns=stamp)))
         self.pub_pose.publish(convert.agent_pose_msg(pose, node=int(obs["node"][0]), heading=int(obs["heading"][0]),
                                                      last_action=last_action, height=self.ear_height, **tag))
@@ -251,7 +254,7 @@ class SimNode(Node):
         self.pub_truth.publish(convert.ground_truth_msg(info, 0, sample_rate=self.sample_rate,
                                                          last_step=self.current.done, **tag))
         self.path.append((float(pose[0]), float(pose[1])))
-        self.pub_path.publish(convert.path_markers(np.array(self.path), height=self.ear_height, stamp_ns=stamp))
+        self.pub_path.publish(lambda: path_markers_cdr(np.array(self.path), height=self.ear_height, stamp_ns=stamp))
         self.published_at = time.monotonic()
         if not self.steps:
             self.first_published_at = self.published_at
@@ -274,6 +277,8 @@ class SimNode(Node):
             self.pub_tf_static.publish(self.tf_message(transforms=convert.transform_msgs(static, stamp_ns=stamp)))
 
     def destroy_node(self) -> None:
+        print(f"sim_node: {on_demand_summary([self.pub_path, self.pub_pcm, self.pub_tf])}",
+              flush=True)
         self.player.close()
         super().destroy_node()
 

@@ -14,7 +14,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from m2h_msgs.msg import (AgentPose, BinauralAudio, EpisodeInfo, EpisodeScore, GroundTruth,
                           MotionCommand, Spectrogram, StepScore)
-from geometry_msgs.msg import Point, Pose, TransformStamped
+from geometry_msgs.msg import Pose, TransformStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA
@@ -232,18 +232,7 @@ def _marker(kind: int, *, namespace: str, marker_id: int, stamp_ns: int, rgba, s
     return msg
 
 
-PATH_COLOUR, TARGET_COLOUR, DISTRACTOR_COLOUR = (0.1, 0.4, 0.9, 1.0), (0.1, 0.7, 0.2, 0.9), (0.85, 0.2, 0.15, 0.9)
-
-
-def path_markers(positions: np.ndarray, *, height: float, stamp_ns: int) -> MarkerArray:
-    """The robot's positions so far this episode, (K, 2) metres: a line through them and a dot at each."""
-    line = _marker(Marker.LINE_STRIP, namespace="path", marker_id=0, stamp_ns=stamp_ns, rgba=PATH_COLOUR,
-                   scale=(0.05, 0.0, 0.0))
-    dots = _marker(Marker.SPHERE_LIST, namespace="path", marker_id=1, stamp_ns=stamp_ns, rgba=PATH_COLOUR,
-                   scale=(0.15, 0.15, 0.15))
-    points = [Point(x=float(x), y=float(y), z=float(height)) for x, y in np.asarray(positions, float).reshape(-1, 2)]
-    line.points = dots.points = points
-    return MarkerArray(markers=[line, dots])
+TARGET_COLOUR, DISTRACTOR_COLOUR = (0.1, 0.7, 0.2, 0.9), (0.85, 0.2, 0.15, 0.9)
 
 
 def source_markers(positions: np.ndarray, categories, *, height: float, stamp_ns: int) -> MarkerArray:
@@ -272,13 +261,6 @@ def raw_audio_msg(raw_audio: type, samples: np.ndarray, *, sample_rate: int, sta
     msg = raw_audio(format="pcm-s16", sample_rate=int(sample_rate), number_of_channels=samples.shape[0])
     msg.timestamp = stamp_of(stamp_ns)
     msg.data = array.array("B", pcm_int16(samples, gain=PCM_GAIN))
-    return msg
-
-
-def spectrogram_image_msg(picture: np.ndarray, *, stamp_ns: int) -> Image:
-    """A core.audio.display.spectrogram_image (rows x frames, dB) -> a 32FC1 Image in the head frame."""
-    msg = depth_msg(picture, stamp_ns=stamp_ns)
-    msg.header.frame_id = HEAD_FRAME
     return msg
 
 

@@ -12,6 +12,7 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from m2h_ros.io.derived import pcm_topic
 from m2h_ros.io.msg_defs import RAW_AUDIO
 from m2h_ros.ros.convert import raw_audio_msg
+from m2h_ros.ros.on_demand import OnDemand
 from m2h_ros.ros.qos import RECORD
 
 
@@ -70,15 +71,22 @@ def optional_message_class(type_name: str) -> type | None:
         return None
 
 
-def raw_audio_publisher(node: Node, audio_topic: str, qos: QoSProfile):
-    """Where foxglove_msgs is installed, a function ``(samples, sample_rate, stamp_ns)`` that publishes
-    pcm-s16 RawAudio on ``<audio_topic>/pcm``; else None (the recorder writes the same track into the bag)."""
+class RawAudioPublisher(OnDemand):
+    """pcm-s16 RawAudio on ``<audio topic>/pcm``, built only while subscribed."""
+
+    def __init__(self, node: Node, audio_topic: str, qos: QoSProfile, raw_audio: type) -> None:
+        super().__init__(node.create_publisher(raw_audio, pcm_topic(audio_topic), qos))
+        self.raw_audio = raw_audio
+
+    def send(self, samples, sample_rate: int, stamp_ns: int) -> None:
+        self.publish(lambda: raw_audio_msg(self.raw_audio, samples, sample_rate=sample_rate, stamp_ns=stamp_ns))
+
+
+def raw_audio_publisher(node: Node, audio_topic: str, qos: QoSProfile) -> RawAudioPublisher | None:
+    """Where foxglove_msgs is installed, the publisher of ``audio_topic``'s pcm-s16 track; else None (the
+    recorder or ``m2h-derive`` writes the same track into the bag)."""
     raw_audio = optional_message_class(RAW_AUDIO)
-    if raw_audio is None:
-        return None
-    publisher = node.create_publisher(raw_audio, pcm_topic(audio_topic), qos)
-    return lambda samples, sample_rate, stamp_ns: publisher.publish(
-        raw_audio_msg(raw_audio, samples, sample_rate=sample_rate, stamp_ns=stamp_ns))
+    return None if raw_audio is None else RawAudioPublisher(node, audio_topic, qos, raw_audio)
 
 
 def adapted_qos(node: Node, topic: str) -> QoSProfile:

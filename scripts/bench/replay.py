@@ -1,7 +1,7 @@
 """Replay scoring rate (m2h-eval's core) vs a bare rosbags read of the same bag, and its peak memory on
 a bag 10x longer.
 
-    python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH] [--threads] [--workers]
+    python scripts/bench/replay.py [--episodes 4] [--steps 20] [--repeats 3] [--bag PATH] [--processes] [--workers]
                                    [--cold]
 
 Writes a synthetic recorded run (m2h_ros.io.synthetic: every pipeline topic, camera included, arrays of
@@ -12,8 +12,9 @@ cases interleaved REPEATS times; the figures are the median and the min-max spre
 * bare read: rosbags' Reader yields every message's raw bytes (no decoding): the floor of any reader;
 * bare read + decode: the same, deserialising the topics replay needs (rosbags' typestore);
 * replay: :func:`m2h_ros.io.replay.replay_bag` (stream, decode, group, score, compare with live);
-* replay x2 (``--threads``): the same with ``ReplayConfig(score_threads=2)``: two cores, where the bare
-  read uses one (compare CPU time too);
+* replay 2 procs (``--processes``): the same with ``ReplayConfig(score_processes=2)`` (``m2h-eval`` on two
+  cores): this process reads, two child processes score; two cores, where the bare read uses one (CPU
+  includes the children's);
 * 2 bags, 2 procs (``--workers``): the bag and a copy of it replayed at once by
   :func:`m2h_ros.io.replay.replay_bags` with ``workers=2`` (``m2h-eval --workers 2``), two child processes;
   its steps/s count both bags' steps (CPU includes the children's).
@@ -108,8 +109,8 @@ def child(mode: str, bag: Path, *others: Path) -> dict:
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     start, cpu = time.perf_counter(), _cpu_seconds()
     steps = 0
-    if mode in ("replay", "split", "replay x2"):
-        replay = replay_bag(bag, config=ReplayConfig(score_threads=2) if mode == "replay x2" else ReplayConfig())
+    if mode in ("replay", "split", PROCESSES):
+        replay = replay_bag(bag, config=ReplayConfig(score_processes=2) if mode == PROCESSES else ReplayConfig())
         steps = replay.steps_scored
         assert replay.ok, [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]
     elif mode == WORKERS:
@@ -131,6 +132,7 @@ def child(mode: str, bag: Path, *others: Path) -> dict:
 
 
 WORKERS = "2 bags, 2 procs"
+PROCESSES = "replay 2 procs"
 DROP_CACHES = Path("/proc/sys/vm/drop_caches")
 
 
@@ -159,8 +161,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20, help="max steps per episode (near-target: 20)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--bag", type=Path, default=None, help="an existing bag instead of synthetic ones")
-    parser.add_argument("--threads", action="store_true",
-                        help="also replay with ReplayConfig(score_threads=2) (a second core scores)")
+    parser.add_argument("--processes", action="store_true",
+                        help="also replay with ReplayConfig(score_processes=2) (two child processes score)")
     parser.add_argument("--workers", action="store_true",
                         help="also replay two copies of the bag at once in two processes (m2h-eval --workers 2)")
     parser.add_argument("--cold", action="store_true",
@@ -190,7 +192,7 @@ def main() -> None:
                 write_synthetic_run(bags[name], SyntheticRun(episodes=episodes, max_steps=args.steps))
                 print(f"wrote {name} bag: {episodes} episodes x {args.steps + 1} observations, "
                       f"{bag_bytes(bags[name]) / 1e6:.0f} MB in {time.perf_counter() - start:.1f} s")
-        modes = ("bare", "bare+decode", "replay") + (("replay x2",) if args.threads else ()) \
+        modes = ("bare", "bare+decode", "replay") + ((PROCESSES,) if args.processes else ()) \
             + ((WORKERS,) if args.workers else ())
         # The second bag of the WORKERS case: a copy, so that each process reads its own file.
         copies = {b: shutil.copytree(bag, Path(tmp) / f"{b}_copy") if bag.is_dir()
@@ -204,13 +206,13 @@ def main() -> None:
             size = bag_bytes(bag) / 1e6
             steps = runs[b, "replay"][0]["steps"]
             print(f"\n{b} bag: {size:.0f} MB, {steps} steps scored")
-            print(f"  {'case':12s} {'steps/s':>22s} {'MB/s':>22s} {'CPU ms/step':>22s} {'page faults/step':>18s} "
+            print(f"  {'case':14s} {'steps/s':>22s} {'MB/s':>22s} {'CPU ms/step':>22s} {'page faults/step':>18s} "
                   f"{'peak RSS MB':>22s}")
             for m in modes:
                 secs = [r["seconds"] for r in runs[b, m]]
                 cpu = [r["cpu_seconds"] / r["steps"] * 1e3 for r in runs[b, m]]
                 faults = [r["page_faults"] / r["steps"] for r in runs[b, m]]
-                print(f"  {m:12s} {spread([r['steps'] / s for r, s in zip(runs[b, m], secs, strict=True)]):>22s} "
+                print(f"  {m:14s} {spread([r['steps'] / s for r, s in zip(runs[b, m], secs, strict=True)]):>22s} "
                       f"{spread([size * r['steps'] / steps / s for r, s in zip(runs[b, m], secs, strict=True)]):>22s} "
                       f"{spread(cpu, '{:.3f}'):>22s} {spread(faults, '{:.0f}'):>18s} "
                       f"{spread([r['peak_rss_mb'] for r in runs[b, m]]):>22s}")

@@ -19,6 +19,7 @@ from pipeline_helpers import ROOT, TINY_SIM, bag_messages, node_args, node_env, 
 from m2h_ros import sim_world, topics
 from m2h_ros.core.results import read_results
 from m2h_ros.core.world.episodes import DEFAULT_MAX_STEPS, STOP
+from m2h_ros.io.derived import derived_topics
 from m2h_ros.node_configs import SimConfig
 
 pytestmark = pytest.mark.graph
@@ -187,9 +188,11 @@ def test_only_the_evaluator_and_the_recorder_subscribe_to_the_ground_truth(proce
             pytest.fail(f"the run never got going: {procs['sim_node'].communicate()[1]}")
         time.sleep(0.1)
 
-    def settled(found, probe) -> bool:  # the recorder on every topic, the evaluator on its own, the controller up
+    derived = derived_topics()  # left to m2h-derive: nobody subscribes to them in an unwatched run
+
+    def settled(found, probe) -> bool:  # the recorder on every raw topic, the evaluator on its own, the controller up
         return (topics.GROUND_TRUTH in found and "evaluator_node" in found[topics.GROUND_TRUTH]
-                and all("recorder_node" in nodes for nodes in found.values())
+                and all("recorder_node" in nodes for topic, nodes in found.items() if topic not in derived)
                 and "controller_node" in probe.get_node_names()
                 and bool(probe.get_subscriber_names_and_types_by_node("controller_node", "/")))
 
@@ -305,12 +308,12 @@ def test_free_running_counts_dropped_steps(small_library, small_data_dir, tmp_pa
 
 def test_replayed_bag_scores_equal_the_live_ones(tiny_run):
     """m2h-eval's core on the recorded bag: the evaluator's results exactly (same code, same data), also
-    with a batch's steps split between two threads."""
+    with the batches scored by two other processes."""
     from m2h_ros.io.replay import ReplayConfig, replay_bag
 
     out, _ = tiny_run
     live = read_results(out / "scores" / "results.json")
-    for config in (ReplayConfig(), ReplayConfig(score_threads=2)):
+    for config in (ReplayConfig(), ReplayConfig(score_processes=2)):
         replay = replay_bag(out / "bag", config=config)
         assert replay.problems == [] and replay.comparison.mismatches == [], \
             [str(p) for p in replay.problems] + [str(m) for m in replay.comparison.mismatches]

@@ -64,10 +64,10 @@ def test_estimates_logged_episodes_late_are_still_scored(tmp_path):
     same_results(replay.results, live)
 
 
-def test_batch_size_and_threads_do_not_change_scores(near_bag):
+def test_batch_size_and_scoring_processes_do_not_change_scores(near_bag):
     bag, live = near_bag
-    for batch, threads in ((1, 1), (3, 1), (16, 2), (3, 3)):
-        replay = replay_bag(bag, config=ReplayConfig(batch_steps=batch, score_threads=threads))
+    for batch, processes in ((1, 1), (3, 1), (16, 2), (3, 3)):
+        replay = replay_bag(bag, config=ReplayConfig(batch_steps=batch, score_processes=processes))
         same_results(replay.results, live)
         assert replay.ok and all(replay.comparison.max_diff[metric] == 0.0 for metric in METRICS)
 
@@ -321,10 +321,10 @@ def test_nan_estimate_gives_up_that_episode_only(tmp_path, poisoned_step):
     replay = replay_bag(bag)
     same_results(replay.results, live[1:])
     assert "NaN" in str(replay.problems[0]) and live[0].episode_id in str(replay.problems[0])
-    # split between threads (the NaN in the first or the last share), the same outcome
-    threaded = replay_bag(bag, config=ReplayConfig(score_threads=2))
-    same_results(threaded.results, live[1:])
-    assert [str(p) for p in threaded.problems] == [str(p) for p in replay.problems]
+    # scored in other processes: the same outcome, named the same
+    parallel = replay_bag(bag, config=ReplayConfig(score_processes=2))
+    same_results(parallel.results, live[1:])
+    assert [str(p) for p in parallel.problems] == [str(p) for p in replay.problems]
 
 
 def test_cli_writes_tables_plots_and_exit_codes(near_bag, tmp_path, capsys):
@@ -342,8 +342,8 @@ def test_cli_writes_tables_plots_and_exit_codes(near_bag, tmp_path, capsys):
     killed = killed_copy(bag, tmp_path / "killed", 0.5)
     assert m2h_eval([str(killed), "--out", str(tmp_path / "out2"), "--no-plots"]) == 3
     assert m2h_eval([str(tmp_path / "nope"), "--out", str(tmp_path / "out3")]) == 2
-    assert m2h_eval([str(bag), "--out", str(tmp_path / "out4"), "--no-plots", "--threads", "2"]) == 0
-    assert m2h_eval([str(bag), "--out", str(tmp_path / "out5"), "--threads", "0"]) == 2
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out4"), "--no-plots", "--workers", "1"]) == 0
+    assert m2h_eval([str(bag), "--out", str(tmp_path / "out5"), "--workers", "0"]) == 2
     shutil.rmtree(killed)
 
 
@@ -364,6 +364,27 @@ def test_workers_replay_bags_in_processes_with_the_same_output(near_bag, tmp_pat
     assert "nope" in written[1][1] and written[1][0].count(" step(s) scored") == 3
     assert m2h_eval([str(bag), "--out", str(tmp_path / "out3"), "--workers", "0"]) == 2
     shutil.rmtree(killed)
+
+
+def test_one_bag_on_several_processes_writes_the_same_tables_as_one_process(tmp_path, capsys):
+    """Read once here, its batches scored by child processes while reading goes on: the same tables,
+    mismatches (in the same order) and printout as one process, estimates episodes late and all."""
+    bag = tmp_path / "bag"
+    with BagWriter(bag) as writer:
+        class Tamper:  # live SI-SDRs off on odd steps: mismatches to list
+            def write(self, topic, msgtype, timestamp, message):
+                if topic == "/scores/step" and message.step % 2:
+                    message.si_sdr += 0.5
+                writer.write(topic, msgtype, timestamp, message)
+        write_synthetic_run(bag, SyntheticRun(episodes=6, max_steps=4, camera=False, estimate_lag=7), writer=Tamper())
+    written = {}
+    for workers in (1, 2, 3):
+        out = tmp_path / f"out{workers}"
+        assert m2h_eval([str(bag), "--out", str(out), "--no-plots", "--workers", str(workers)]) == 1
+        written[workers] = [capsys.readouterr().out.replace(str(out), "OUT")] + [
+            (out / name).read_text() for name in ("results.csv", "results.json", "comparison.md", "comparison.csv")]
+    assert written[1] == written[2] == written[3]
+    assert written[1][4].count("\n") == 1 + 6 * 2  # the header and two odd steps of each of the 6 episodes
 
 
 def test_a_damaged_first_chunk_costs_only_its_own_messages(tmp_path):

@@ -284,8 +284,9 @@ AUDIO_OUTPUTS = ("masked_mixture", "refined")
 
 
 def masked_mixture(binaural_magnitude: np.ndarray, binaural_mixture: np.ndarray, *,
-                   config: StftConfig = DEFAULT_STFT) -> np.ndarray:
-    """A separated binaural magnitude (..., 2, F, T) with each ear's own mixture phase, ear mean (..., N).
+                   config: StftConfig = DEFAULT_STFT, spec: np.ndarray | None = None) -> np.ndarray:
+    """A separated binaural magnitude (..., 2, F, T) with each ear's own mixture phase, ear mean (..., N);
+    ``spec``: the mixture's STFT, where the caller has it (the separator computed it for its input).
 
     f^B predicts a ratio mask on each ear's mixture; applied there, each ear keeps its own timing and
     room, which the mean then adds coherently: the target as the microphones heard it, less the
@@ -293,6 +294,6 @@ def masked_mixture(binaural_magnitude: np.ndarray, binaural_mixture: np.ndarray,
     mixture = np.asarray(binaural_mixture)
     if mixture.ndim < 2 or mixture.shape[-2] != 2:
         raise AudioError(f"binaural mixture must have shape (..., 2, N), got {mixture.shape}")
-    ears = rebuild_with_phase(binaural_magnitude, stft(mixture, config=config), config=config,
-                              length=mixture.shape[-1])
+    ears = rebuild_with_phase(binaural_magnitude, stft(mixture, config=config) if spec is None else spec,
+                              config=config, length=mixture.shape[-1])
     return ears.mean(axis=-2)
