@@ -32,7 +32,7 @@ from m2h_ros.core.world.episodes import TASKS, EpisodeConfig, episodes_for, scen
 from m2h_ros.core.world.rir_bank import bank_dir  # noqa: E402
 from m2h_ros.errors import ConfigError, reports_errors  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
-from m2h_ros.models.listener import Listener, save_listener  # noqa: E402
+from m2h_ros.models.listener import Listener, ListenerConfig, save_listener  # noqa: E402
 from m2h_ros.paths import file_label, repo_relative  # noqa: E402
 from m2h_ros.sim_world import ACOUSTICS_PRESETS  # noqa: E402
 from m2h_ros.training.listener_train import (  # noqa: E402
@@ -87,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", action="append", required=True, help="SCENES@ACOUSTICS@SEED (repeatable)")
     parser.add_argument("--only-cached", action="store_true", help="skip episodes whose RIRs are not built")
     parser.add_argument("--separator", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="f^B to start from")
+    parser.add_argument("--filter-taps", type=int, default=ListenerConfig.filter_taps,
+                        help="frames the two-ear filter reads per bin (current + earlier)")
     parser.add_argument("--steps", type=int, default=ListenerTrainConfig.steps)
     parser.add_argument("--batch-size", type=int, default=ListenerTrainConfig.batch_size)
     parser.add_argument("--learning-rate", type=float, default=ListenerTrainConfig.learning_rate)
@@ -106,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     rendered = round(time.perf_counter() - started, 1)
     print(f"{len(examples)} examples ({rendered} s)", flush=True)
     loaded = load_separator(args.separator)
-    listener = Listener.from_separator(loaded.separator)
+    listener = Listener.from_separator(loaded.separator, filter_taps=args.filter_taps)
     class_map = np.array([loaded.class_index(name) for name in TARGET_CATEGORIES], np.int64)
     summary = train_listener(listener, examples, class_map=class_map, stft_config=loaded.stft, config=config,
                              state_path=args.work / "train_state.pt", log=lambda line: print(line, flush=True))

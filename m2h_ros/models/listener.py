@@ -7,12 +7,13 @@ channels, as f^B), the class plane, and the interaural phase difference of every
 sine, 2S more channels, whose first-layer weights start at zero). It returns, for each ear e, the
 complex spectrum
 
-    Y_e = sigmoid(m_e) * X_e + sum_j c_ej * X_j          (j over both ears, c_ej complex)
+    Y_e(t) = sigmoid(m_e(t)) * X_e(t) + sum_j sum_k c_ejk(t) * X_j(t - k)   (j over both ears, k < taps)
 
 a ratio mask on the ear's own mixture (f^B's head, so the untrained model *is* f^B's masked mixture)
-plus a per-bin two-ear complex filter (a zero-initialised 1x1 head): a learned beamformer per bin that
-can use the phase, which f^B's magnitude mask cannot, to take out the distractor and the late
-reverberation. Trained on the waveform (SI-SDR against the target's early image at each ear and at
+plus a per-bin two-ear complex filter over the current and ``filter_taps - 1`` earlier frames (a
+zero-initialised 1x1 head): a learned beamformer per bin that can use the phase, which f^B's magnitude
+mask cannot, to take out the distractor, and with earlier frames the late reverberation (which the
+past of the same bin predicts). Trained on the waveform (SI-SDR against the target's early image at each ear and at
 the ear mean; ``training/listener_train.py``), so it keeps both ears (binaural output, ear mean for a
 monaural listener).
 """
@@ -40,7 +41,7 @@ LISTENER_KIND = "m2h_listener"
 LISTENER_VERSION = 1
 DEFAULT_LISTENER_CHECKPOINT = PACKAGE_DIR / "models" / "default" / "listener.pt"
 _PHASE_FLOOR = 1e-8  # |X_L X_R*| below this: the bin's phase difference reads as 0 (cos 1, sin 0)
-# Per output ear, per input ear, real and imaginary part of the complex filter coefficient.
+# Per output ear, per input ear, real and imaginary part of a complex filter coefficient.
 _FILTER_TERMS = N_EARS * N_EARS * 2
 
 
@@ -50,14 +51,17 @@ class ListenerConfig:
 
     unet_channels: tuple[int, ...] = (16, 32, 64, 64, 64)
     n_freq_slices: int = 16
+    filter_taps: int = 1  # frames the two-ear filter reads per bin: the current one and taps - 1 before it
 
     def __post_init__(self) -> None:
         channels = tuple(self.unet_channels) if isinstance(self.unet_channels, (list, tuple)) else ()
         if len(channels) != 5 or any(not isinstance(c, int) or isinstance(c, bool) or c <= 0 for c in channels):
             raise ConfigError(f"ListenerConfig.unet_channels must be 5 positive ints, got {self.unet_channels!r}")
         object.__setattr__(self, "unet_channels", channels)
-        if not isinstance(self.n_freq_slices, int) or isinstance(self.n_freq_slices, bool) or self.n_freq_slices <= 0:
-            raise ConfigError(f"ListenerConfig.n_freq_slices must be a positive int, got {self.n_freq_slices!r}")
+        for name in ("n_freq_slices", "filter_taps"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+                raise ConfigError(f"ListenerConfig.{name} must be a positive int, got {value!r}")
 
     @property
     def ear_channels(self) -> int:
@@ -90,18 +94,18 @@ class Listener(nn.Module):
         ears = config.ear_channels
         # Input: [log(1 + |X|) (2S), class plane, cos and sin of the interaural phase difference (2S)]
         self.unet = UNet(ears + 1 + ears, ears, config.unet_channels)
-        self.filter_head = nn.Conv2d(ears, _FILTER_TERMS * config.n_freq_slices, kernel_size=1)
+        self.filter_head = nn.Conv2d(ears, _FILTER_TERMS * config.filter_taps * config.n_freq_slices, kernel_size=1)
         nn.init.zeros_(self.filter_head.weight)
         nn.init.zeros_(self.filter_head.bias)
 
     @classmethod
-    def from_separator(cls, separator: Separator) -> Listener:
+    def from_separator(cls, separator: Separator, *, filter_taps: int = 1) -> Listener:
         """A listener whose output is, before training, f^B's mask on each ear's mixture: f^B's U-Net
         weights copied, the phase inputs' first-layer weights and the filter head at zero."""
         if separator.config.backbone != "unet":
             raise ConfigError(f"a listener starts from a U-Net f^B; this separator's is {separator.config.backbone!r}")
         listener = cls(ListenerConfig(unet_channels=separator.config.unet_channels,
-                                      n_freq_slices=separator.config.n_freq_slices))
+                                      n_freq_slices=separator.config.n_freq_slices, filter_taps=filter_taps))
         source = separator.binaural_separator.state_dict()
         own = listener.unet.state_dict()
         for name, tensor in source.items():
@@ -127,9 +131,14 @@ class Listener(nn.Module):
                               to_slices(phase, n_slices=slices)), dim=1)
         hidden = self.unet.features(features)
         mask = from_slices(torch.sigmoid(self.unet.head(hidden)), n_slices=slices)  # (B, 2, F, T)
-        terms = from_slices(self.filter_head(hidden), n_slices=slices).reshape(batch, N_EARS, N_EARS, 2, n_freq, n_frames)
-        coefficients = torch.complex(terms[:, :, :, 0], terms[:, :, :, 1])  # (B, out ear, in ear, F, T)
-        return mask * spec + (coefficients * spec[:, None]).sum(dim=2)
+        taps = self.config.filter_taps
+        terms = from_slices(self.filter_head(hidden), n_slices=slices).reshape(
+            batch, N_EARS, N_EARS * taps, 2, n_freq, n_frames)
+        coefficients = torch.complex(terms[:, :, :, 0], terms[:, :, :, 1])  # (B, out ear, in ear x tap, F, T)
+        # X_j(t - k) for every ear j and tap k, zero before the frame's start: (B, 2 * taps, F, T)
+        past = torch.nn.functional.pad(spec, (taps - 1, 0)) if taps > 1 else spec
+        delayed = torch.cat([past[..., taps - 1 - k: taps - 1 - k + n_frames] for k in range(taps)], dim=1)
+        return mask * spec + (coefficients * delayed[:, None]).sum(dim=2)
 
 
 def listen(listener: Listener, mixture: np.ndarray, class_index: np.ndarray, *,
