@@ -58,6 +58,25 @@ def test_a_listener_started_from_f_b_gives_f_b_masked_mixture():
     np.testing.assert_allclose(out, expected, atol=1e-4 * np.abs(expected).max())
     fused = listen(fuse_for_inference(listener), mixture, classes)
     np.testing.assert_allclose(fused, out, atol=1e-4 * np.abs(out).max())
+    with_taps = listen(Listener.from_separator(separator, filter_taps=3).eval(), mixture, classes)
+    np.testing.assert_allclose(with_taps, out, atol=1e-6 * np.abs(out).max())
+
+
+def test_earlier_frames_reach_the_output_through_the_filter_taps():
+    """A filter that passes only the left ear one frame late gives the left ear's spectrum shifted by a frame."""
+    listener = Listener(ListenerConfig(filter_taps=2)).eval()
+    torch.nn.init.constant_(listener.unet.head.bias, -30.0)  # mask ~0
+    torch.nn.init.zeros_(listener.unet.head.weight)
+    bias = torch.zeros(listener.filter_head.out_channels).reshape(-1, 16)  # (terms, slices), terms as in forward
+    # out ear 0, input "ear x tap" index 2 (tap 1 of ear 0), real part -> index ((0 * 4) + 2) * 2 + 0
+    bias[(0 * 4 + 2) * 2] = 1.0
+    with torch.no_grad():
+        listener.filter_head.bias.copy_(bias.reshape(-1))
+    spec = torch.randn(1, 2, 512, 32, dtype=torch.complex64)
+    with torch.no_grad():
+        out = listener(spec, torch.zeros(1, dtype=torch.int64))
+    torch.testing.assert_close(out[0, 0, :, 1:], spec[0, 0, :, :-1], atol=1e-5, rtol=1e-5)
+    assert out[0, 0, :, 0].abs().max() < 1e-5 and out[0, 1].abs().max() < 1e-5
 
 
 def test_the_two_ear_filter_learns_to_take_out_a_distractor_a_mask_cannot(tmp_path: Path):
