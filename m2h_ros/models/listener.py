@@ -185,6 +185,9 @@ def save_listener(path: str | os.PathLike, listener: Listener, *, classes: tuple
 
 def load_listener(path: str | os.PathLike, *, map_location: str | torch.device = "cpu") -> LoadedListener:
     path = Path(path)
+    if not path.is_file() and path.resolve() == DEFAULT_LISTENER_CHECKPOINT.resolve():
+        raise CheckpointError(f"shipped listener checkpoint {path} not found; build it with the command in "
+                              "docs/results/listener/README.md (scripts/train_listener.py)")
     payload = read_checkpoint(path, kind=LISTENER_KIND, map_location=map_location)
     if payload.get("listener_version") != LISTENER_VERSION:
         raise CheckpointError(f"checkpoint {path} is listener version {payload.get('listener_version')!r}; "

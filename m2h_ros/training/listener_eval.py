@@ -124,12 +124,16 @@ def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], libr
 
 def summarize(scores: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:
     """Mean, standard error and count of each metric (NaNs, i.e. non-speech STOI, left out); for every
-    estimate also its paired difference from the microphone."""
+    estimate also its paired difference from the microphone and, where both are scored, the listener's
+    from the masked mixture."""
     out: dict[str, dict[str, float]] = {}
     for estimate, metrics in scores.items():
         row: dict[str, float] = {}
         for name, values in metrics.items():
-            for label, data in ((name, values), (f"{name}_minus_microphone", values - scores["microphone"][name])):
+            pairs = [(name, values), (f"{name}_minus_microphone", values - scores["microphone"][name])]
+            if estimate == "listener" and "masked_mixture" in scores:
+                pairs.append((f"{name}_minus_masked_mixture", values - scores["masked_mixture"][name]))
+            for label, data in pairs:
                 data = data[np.isfinite(data)]
                 row[label] = float(np.mean(data)) if len(data) else float("nan")
                 row[f"{label}_sem"] = float(np.std(data, ddof=1) / np.sqrt(len(data))) if len(data) > 1 else 0.0

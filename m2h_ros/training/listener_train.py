@@ -26,7 +26,7 @@ from tqdm import tqdm
 from m2h_ros.core.audio.stft import StftConfig
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
-from m2h_ros.core.world.episodes import Episode
+from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_RIGHT, Episode
 from m2h_ros.errors import ConfigError
 from m2h_ros.models.listener import Listener
 from m2h_ros.training.listener_eval import early_images
@@ -69,20 +69,29 @@ class ListenerExamples:
 
 
 def render_examples(episodes: Sequence[Episode], library: SoundLibrary, *, env_config: EnvConfig,
-                    n_envs: int = 16, progress: bool = True) -> ListenerExamples:
-    """The step-0 mixture and the target's early image at each ear of every episode."""
+                    poses: int = 1, seed: int = 0, n_envs: int = 16, progress: bool = True) -> ListenerExamples:
+    """The mixture and the target's early image at each ear of every episode at ``poses`` poses: its
+    start, then after each of ``poses - 1`` random moves (forward, left, right; never Stop). The same
+    sources and clips heard from elsewhere: more rooms' worth of examples from the RIRs of one episode's
+    sources."""
     episodes = list(episodes)
     if not episodes:
         raise ConfigError("render_examples needs at least one episode")
+    if poses < 1 or any(poses > episode.max_steps for episode in episodes):
+        raise ConfigError(f"poses={poses} must be in [1, the episodes' step count]")
+    rng = np.random.default_rng(seed)
     env = BatchEnv(episodes, library, n_envs=min(n_envs, len(episodes)), config=env_config, autoreset=False)
     mixtures, earlies, classes = [], [], []
     try:
         for rows, keep, obs, info in step_zero_batches(env, episodes, desc="listener examples", progress=progress):
-            mixtures.append(obs["audio"][keep].astype(np.float16))
-            earlies.append(early_images(info["target_monaural"][keep], env.target_rirs(range(len(rows))),
-                                        info["target_delay"][keep],
-                                        sample_rate=env_config.stft.sample_rate).astype(np.float16))
-            classes.append(np.asarray(obs["target_class"][keep], np.int64))
+            for pose in range(poses):
+                if pose:
+                    obs, _, _, _, info = env.step(rng.integers(MOVE_FORWARD, TURN_RIGHT + 1, env.n_envs))
+                mixtures.append(obs["audio"][keep].astype(np.float16))
+                earlies.append(early_images(info["target_monaural"][keep], env.target_rirs(range(len(rows))),
+                                            info["target_delay"][keep],
+                                            sample_rate=env_config.stft.sample_rate).astype(np.float16))
+                classes.append(np.asarray(obs["target_class"][keep], np.int64))
     finally:
         env.close()
     return ListenerExamples(np.concatenate(mixtures), np.concatenate(earlies), np.concatenate(classes))
