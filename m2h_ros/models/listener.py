@@ -32,7 +32,8 @@ from torch import nn
 from m2h_ros.config import reject_unknown_fields
 from m2h_ros.core.audio.stft import DEFAULT_STFT, StftConfig, from_slices, istft, stft, to_slices
 from m2h_ros.errors import AudioError, CheckpointError, ConfigError
-from m2h_ros.models.checkpoint import load_state_checked, model_settings, read_checkpoint, write_checkpoint
+from m2h_ros.models.checkpoint import (class_index_in, load_state_checked, model_settings, read_checkpoint,
+                                      write_checkpoint)
 from m2h_ros.models.separator import N_EARS, Separator
 from m2h_ros.models.unet import UNet
 from m2h_ros.paths import PACKAGE_DIR
@@ -170,9 +171,7 @@ class LoadedListener:
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def class_index(self, name: str) -> int:
-        if name not in self.classes:
-            raise ConfigError(f"unknown target class {name!r}; this listener knows {list(self.classes)}")
-        return self.classes.index(name)
+        return class_index_in(self.classes, name, model="listener")
 
 
 def save_listener(path: str | os.PathLike, listener: Listener, *, classes: tuple[str, ...] | list[str],
