@@ -8,7 +8,7 @@ from pathlib import Path
 from m2h_ros.agents.registry import CONTROLLER_NAMES
 from m2h_ros import topics
 from m2h_ros.config import DEVICES, Config, setting
-from m2h_ros.core.audio.stft import AUDIO_OUTPUTS
+from m2h_ros.core.audio.stft import AUDIO_CHANNELS, AUDIO_OUTPUTS
 from m2h_ros.core.robot.base_motion import MotionLimits
 from m2h_ros.core.world.acoustics import BACKENDS
 from m2h_ros.core.world.hrtf import parse_head
@@ -100,10 +100,16 @@ class SeparatorNodeConfig(Config):
     torch_threads: int = setting(0, "torch threads; 0: models.threads.inference_threads(1) = 1, "
                                  "the fastest at batch 1 on 2 cores (fused compact: 3.7 ms vs 4.2 ms "
                                  "with 2, scripts/bench/separator.py)", min=0, max=64)
-    audio_output: str = setting("masked_mixture", "what separator/audio carries: masked_mixture, f^B's mask on "
-                                "each ear of the mixture (the target as heard, ear mean: beats the raw microphone, "
-                                "docs/design/separator.md), or refined, the refined estimate of the dry target "
-                                "with the mixture's phase", choices=AUDIO_OUTPUTS)
+    audio_output: str = setting("listener", "what separator/audio carries: listener, the listener output trained "
+                                "for what a listener gets (the target's early image at the ears, "
+                                "docs/design/separator.md); masked_mixture, f^B's mask on each ear of the mixture "
+                                "(the target as heard); or refined, the refined estimate of the dry target with the "
+                                "mixture's phase (monaural)", choices=AUDIO_OUTPUTS)
+    audio_channels: str = setting("binaural", "channels of separator/audio: binaural (left, right: a person hears "
+                                  "where the target is) or mono (the ear mean, for a speech recogniser); refined "
+                                  "is mono either way", choices=AUDIO_CHANNELS)
+    listener_checkpoint: str = setting("", "listener checkpoint (.pt) for audio_output listener; empty: the "
+                                       "shipped one")
     device: str = setting("cpu", "torch device of the separator: cpu, cuda, or auto (CUDA when present). The "
                           "in-process evaluations run on the CPU: cpu gives their numbers bit for bit, a GPU "
                           "the same to float tolerance", choices=DEVICES)
@@ -111,6 +117,7 @@ class SeparatorNodeConfig(Config):
     def __post_init__(self) -> None:
         super().__post_init__()
         check_file(self, "checkpoint", self.checkpoint, "a separator checkpoint")
+        check_file(self, "listener_checkpoint", self.listener_checkpoint, "a listener checkpoint")
 
 
 @dataclass(frozen=True)

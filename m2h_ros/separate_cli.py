@@ -1,12 +1,14 @@
 """``m2h-separate``: extract one target class from a stereo (binaural) recording with a trained separator.
 
 The file is resampled to the separator's rate (16 kHz), scaled to the mixture power the separator was
-trained on, and cut into 1 s frames (the last one zero-padded). Frames go through f^B -> f^M -> f^R in
-order, the refiner's memory carried from frame to frame, and each frame's refined magnitude is turned
-back into a waveform with the mixture's phase (mean of the two channels; the ground-truth phase the
-paper reports is not available for a real recording). The frames are concatenated without overlap
-(the centred STFT rebuilds each 1 s frame completely), scaled back, resampled to the input rate and
-written as a mono file. Errors in the input end the program with exit code 2 and a one-line message.
+trained on, and cut into 1 s frames (the last one zero-padded). Each frame gives what ``separator_node``
+publishes on ``separator/audio`` (``--output``, as its ``audio_output``): by default the listener output,
+the target's early image at both ears (a stereo file; ``--mono`` writes their mean); ``masked_mixture``,
+f^B's mask on each ear; or ``refined``, f^B -> f^M -> f^R with the refiner's memory carried from frame
+to frame, rebuilt with the mixture's phase (mono; the ground-truth phase the paper reports is not
+available for a real recording). The frames are concatenated without overlap (the centred STFT rebuilds
+each 1 s frame completely), scaled back, resampled to the input rate and written. Errors in the input
+end the program with exit code 2 and a one-line message.
 """
 
 from __future__ import annotations
@@ -23,11 +25,12 @@ import soundfile as sf
 import torch
 from tqdm import tqdm
 
-from m2h_ros.errors import AudioError, M2HError
+from m2h_ros.core.audio.stft import AUDIO_OUTPUTS
+from m2h_ros.errors import AudioError, ConfigError, M2HError
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, LoadedSeparator, load_separator
-from m2h_ros.models.inference import fuse_for_inference
-from m2h_ros.models.separator import separate_clip
 from m2h_ros.models.device import DEVICES, resolve_device
+from m2h_ros.models.listener import DEFAULT_LISTENER_CHECKPOINT, LoadedListener, load_listener
+from m2h_ros.models.runner import SeparatorRunner
 from m2h_ros.models.threads import inference_threads
 
 # Checkpoint metadata entry giving the mean power of the training mixtures; inputs are scaled to it.
@@ -58,10 +61,15 @@ def check_stereo(audio: np.ndarray) -> None:
         raise AudioError("input is silent (mean power below -100 dBFS)")
 
 
-def separate_recording(loaded: LoadedSeparator, audio: np.ndarray, sample_rate: int, target: str) -> np.ndarray:
-    """Stereo recording (N, 2) at ``sample_rate`` -> separated monaural target (N,) at the same rate."""
+def separate_recording(loaded: LoadedSeparator, audio: np.ndarray, sample_rate: int, target: str, *,
+                       output: str = "refined", listener: LoadedListener | None = None,
+                       binaural: bool = False) -> np.ndarray:
+    """Stereo recording (N, 2) at ``sample_rate`` -> the ``output`` (an ``AUDIO_OUTPUTS`` name; ``listener``
+    needs ``listener``) at the same rate: (N, 2) where it has two ears and ``binaural``, else (N,)."""
     class_index = loaded.class_index(target)
     check_stereo(audio)
+    if output not in AUDIO_OUTPUTS:
+        raise ConfigError(f"output {output!r}: one of {', '.join(AUDIO_OUTPUTS)}")
     config = loaded.stft
     mixture = _resample(np.asarray(audio, dtype=np.float32), sample_rate, config.sample_rate)
     target_power = float(loaded.metadata.get(MIXTURE_POWER_KEY, FALLBACK_MIXTURE_POWER))
@@ -71,19 +79,24 @@ def separate_recording(loaded: LoadedSeparator, audio: np.ndarray, sample_rate: 
     padded = np.zeros((n_frames * frame, 2), dtype=np.float32)
     padded[: mixture.shape[0]] = mixture * gain
     frames = padded.reshape(n_frames, frame, 2).transpose(0, 2, 1)  # (frames, 2, samples)
-    separator = fuse_for_inference(loaded.separator)  # same numbers, several times faster per frame
-    memory = None
+    # The node's runner: the same fused networks, memory and outputs as separator/audio
+    runner = SeparatorRunner(loaded, 1, listener=listener if output == "listener" else None)
+    classes = np.array([class_index])
     pieces = []
-    for clip in tqdm(frames, desc="separating", unit="s", disable=n_frames < PROGRESS_MIN_FRAMES, leave=False):
-        result = separate_clip(separator, clip[None], class_index, memory=memory, config=config)
-        memory = result.memory
-        pieces.append(result.waveform[0])
-    separated = np.concatenate(pieces)[: mixture.shape[0]] / gain
+    for k, clip in enumerate(tqdm(frames, desc="separating", unit="s", disable=n_frames < PROGRESS_MIN_FRAMES,
+                                  leave=False)):
+        if output == "listener":
+            piece = runner.listen(clip[None], classes, binaural=binaural)[0]
+        else:
+            step = runner.step(clip[None], classes, np.array([k == 0]))
+            piece = step.waveform(clip[None], config=config, output=output, binaural=binaural)[0]
+        pieces.append(piece.reshape(-1, frame))
+    separated = np.concatenate(pieces, axis=-1).T[: mixture.shape[0]] / gain  # (samples, channels)
     separated = _resample(separated, config.sample_rate, sample_rate)
-    out = np.zeros(audio.shape[0], dtype=np.float32)
+    out = np.zeros((audio.shape[0], separated.shape[1]), dtype=np.float32)
     n = min(out.shape[0], separated.shape[0])
     out[:n] = separated[:n]
-    return out
+    return out if out.shape[1] == 2 else out[:, 0]
 
 
 def _write(path: Path, audio: np.ndarray, sample_rate: int) -> None:
@@ -99,13 +112,20 @@ def _write(path: Path, audio: np.ndarray, sample_rate: int) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="m2h-separate",
-        description="Extract the target sound class from a stereo (binaural) recording as a mono file.",
+        description="Extract the target sound class from a stereo (binaural) recording.",
     )
     parser.add_argument("input", type=Path, help="stereo wav/flac/ogg file, any length and sample rate")
-    parser.add_argument("output", type=Path, help="mono output file (format from the extension)")
+    parser.add_argument("output", type=Path, help="output file (format from the extension): stereo for the "
+                        "listener and masked_mixture outputs unless --mono, else mono")
     parser.add_argument("--target", required=True, help="target class, one of the checkpoint's classes (e.g. speech)")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT,
                         help=f"separator checkpoint (default: {DEFAULT_SEPARATOR_CHECKPOINT})")
+    parser.add_argument("--output", dest="audio_output", default=AUDIO_OUTPUTS[0], choices=AUDIO_OUTPUTS,
+                        help="what to extract, as separator_node's audio_output (default: %(default)s, the target's "
+                        "early image at both ears)")
+    parser.add_argument("--mono", action="store_true", help="the ear mean (one channel), for a speech recogniser")
+    parser.add_argument("--listener", type=Path, default=DEFAULT_LISTENER_CHECKPOINT,
+                        help=f"listener checkpoint for --output listener (default: {DEFAULT_LISTENER_CHECKPOINT})")
     parser.add_argument("--device", default="cpu", choices=DEVICES,
                         help="torch device: cpu (default), cuda, or auto (CUDA when present)")
     return parser
@@ -122,7 +142,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             audio, sample_rate = sf.read(args.input, dtype="float32", always_2d=True)
         except (sf.LibsndfileError, RuntimeError, OSError) as exc:
             raise AudioError(f"cannot read {args.input}: {exc}") from exc
-        separated = separate_recording(loaded, audio, sample_rate, args.target)
+        listener = None
+        if args.audio_output == "listener":
+            listener = load_listener(args.listener, map_location=resolve_device(args.device, field="--device"))
+        separated = separate_recording(loaded, audio, sample_rate, args.target, output=args.audio_output,
+                                       listener=listener, binaural=not args.mono)
         _write(args.output, separated, sample_rate)
     except M2HError as exc:
         print(f"m2h-separate: error: {' '.join(str(exc).split())}", file=sys.stderr)

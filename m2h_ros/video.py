@@ -102,7 +102,8 @@ def read_episode(bag: Path, episode: int | str = 0) -> EpisodeMedia:
             media.mixture[msg.step] = samples
             step_of[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = msg.step
         elif topic == absolute(topics.SEPARATED_AUDIO):
-            media.estimate[msg.step] = np.asarray(msg.samples, np.float32).reshape(-1)
+            # one track: a binaural estimate plays as its ear mean
+            media.estimate[msg.step] = np.asarray(msg.samples, np.float32).reshape(max(msg.channels, 1), -1).mean(axis=0)
         elif topic == absolute(topics.STEP_SCORE):
             media.si_sdr[msg.step] = float(msg.si_sdr)
         elif topic == absolute(topics.AGENT_POSE):

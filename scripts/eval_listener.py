@@ -23,11 +23,12 @@ from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
 from m2h_ros.errors import reports_errors
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
+from m2h_ros.models.listener import DEFAULT_LISTENER_CHECKPOINT, load_listener
 from m2h_ros.paths import file_label, repo_relative
 from m2h_ros.training.listener_eval import ESTIMATES, REFERENCES, evaluate_listener, summarize
 
-LABELS = {"microphone": "microphone (floor)", "masked_mixture": "output: masked mixture",
-          "refined": "output: refined (mixture phase)", "oracle": "ideal mask (oracle)"}
+LABELS = {"microphone": "microphone (floor)", "listener": "output: listener", "masked_mixture": "masked mixture",
+          "refined": "refined", "oracle": "ideal mask (oracle)"}
 REFERENCE_LABELS = {"early": "early image (direct + 50 ms)", "as_heard": "as heard (whole RIR)"}
 
 
@@ -38,7 +39,7 @@ def format_table(results: dict[str, dict]) -> str:
                   "| sounds | estimate | SI-SDR (dB) | vs microphone (paired) | STOI (speech) | n (speech) |",
                   "|---|---|---|---|---|---|"]
         for split, summary in results.items():
-            for estimate in ESTIMATES:
+            for estimate in (e for e in ESTIMATES if e in summary):
                 s, sdr, st = summary[estimate], f"si_sdr_{reference}", f"stoi_{reference}"
                 paired = "" if estimate == "microphone" else \
                     f"{s[sdr + '_minus_microphone']:+.2f} ± {s[sdr + '_minus_microphone_sem']:.2f}"
@@ -52,18 +53,21 @@ def format_table(results: dict[str, dict]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT)
+    parser.add_argument("--listener", type=Path, default=DEFAULT_LISTENER_CHECKPOINT,
+                        help="listener checkpoint to score (default: the shipped one)")
     parser.add_argument("--count", type=int, default=500, help="episodes per sound split")
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
     parser.add_argument("--out", type=Path, required=True, help="folder for results.md and results.json")
     args = parser.parse_args(argv)
     loaded = load_separator(args.checkpoint)
+    listener = load_listener(args.listener)
     library = SoundLibrary.load()
     results, started = {}, time.perf_counter()
     for split in args.sound_split or SOUND_SPLITS:
         episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
         results[split] = summarize(evaluate_listener(loaded, episodes[: args.count], library,
-                                                     env_config=EnvConfig(camera=False)))
+                                                     env_config=EnvConfig(camera=False), listener=listener))
     given = sys.argv[1:] if argv is None else argv
     command = shlex.join(["python", "scripts/eval_listener.py", *given])
     table = format_table(results)
@@ -72,10 +76,12 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "results.md").write_text(
         f"# What a listener gets: {args.task}, step 0, {args.count} test episodes per sound split\n\n"
-        f"`{command}` ({date.today().isoformat()}, {wall} s)\n\nSeparator: {file_label(args.checkpoint)}\n"
+        f"`{command}` ({date.today().isoformat()}, {wall} s)\n\nSeparator: {file_label(args.checkpoint)}; "
+        f"listener: {file_label(args.listener)}\n"
         f"{table}\n")
     (args.out / "results.json").write_text(json.dumps(
-        {"command": command, "checkpoint": repo_relative(args.checkpoint), "task": args.task, "scene_split": "test",
+        {"command": command, "checkpoint": repo_relative(args.checkpoint), "listener": repo_relative(args.listener),
+         "task": args.task, "scene_split": "test",
          "step": 0, "count_per_split": args.count, "wall_seconds": wall, "results": results}, indent=1) + "\n")
     print(f"wrote {repo_relative(args.out)}/results.md, results.json")
     return 0

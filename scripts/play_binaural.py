@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Publish a stereo recording as a live binaural microphone would: 1 s BinauralAudio frames on
 `audio`, at real-time rate (``--speed`` plays faster), and optionally record what the separator
-sends back on `separator/audio` into a mono file.
+sends back on `separator/audio` into a file (stereo for its default binaural listener output, mono for
+``audio_channels:=mono`` or the refined output).
 
     ros2run m2h_ros separator_node --ros-args -p target_class:=speech &
     python scripts/play_binaural.py recording.wav --listen separated.wav
@@ -61,8 +62,9 @@ class Player(Node):
 
     def on_answer(self, msg: BinauralAudio) -> None:
         if msg.episode_id == self.episode_id:
+            channels = msg.channels if msg.channels in (1, 2) else 1  # anything else: audio_from_msg names it
             self.answers[msg.step] = convert.audio_from_msg(msg, sample_rate=DEFAULT_STFT.sample_rate,
-                                                            samples=DEFAULT_STFT.clip_samples, channels=1)[0]
+                                                            samples=DEFAULT_STFT.clip_samples, channels=channels)
 
     def publish_next(self) -> None:
         msg = convert.audio_msg(self.frames[self.next], sample_rate=DEFAULT_STFT.sample_rate,
@@ -75,7 +77,7 @@ class Player(Node):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("input", type=Path, help="stereo wav/flac (left, right ear)")
-    parser.add_argument("--listen", type=Path, help="write the separator's answers to this mono file")
+    parser.add_argument("--listen", type=Path, help="write the separator's answers to this file")
     parser.add_argument("--speed", type=float, default=1.0, help="playback speed (1 = real time)")
     parser.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for a subscriber / answers")
     args = parser.parse_args(argv)
@@ -109,8 +111,9 @@ def main(argv=None) -> int:
             if missing:
                 print(f"play_binaural: error: no answer for frames {missing}", file=sys.stderr)
                 return 1
-            mono = np.concatenate([node.answers[k] for k in range(len(frames))])[:length]
-            _write(args.listen, _resample(mono, DEFAULT_STFT.sample_rate, rate), rate)
+            heard = np.concatenate([node.answers[k] for k in range(len(frames))], axis=-1).T[:length]
+            heard = _resample(heard, DEFAULT_STFT.sample_rate, rate)
+            _write(args.listen, heard[:, 0] if heard.shape[1] == 1 else heard, rate)
             print(f"play_binaural: {len(frames)} frames separated -> {args.listen}")
         return 0
     finally:

@@ -154,6 +154,13 @@ def load_state_checked(module: nn.Module, state_dict: Mapping[str, torch.Tensor]
     module.load_state_dict(state_dict)
 
 
+def class_index_in(classes: Sequence[str], name: str, *, model: str) -> int:
+    """Index of a target class in a checkpoint's class list; ConfigError naming the known ones."""
+    if name not in classes:
+        raise ConfigError(f"unknown target class {name!r}; this {model} knows {list(classes)}")
+    return list(classes).index(name)
+
+
 @dataclass(frozen=True)
 class LoadedSeparator:
     """A separator rebuilt from its checkpoint (in eval mode) with the settings it was trained with."""
@@ -166,9 +173,7 @@ class LoadedSeparator:
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def class_index(self, name: str) -> int:
-        if name not in self.classes:
-            raise ConfigError(f"unknown target class {name!r}; this separator knows {list(self.classes)}")
-        return self.classes.index(name)
+        return class_index_in(self.classes, name, model="separator")
 
 
 def save_separator(path: str | os.PathLike, separator: Separator, *, classes: Sequence[str],

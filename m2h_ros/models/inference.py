@@ -26,13 +26,15 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
+from typing import TypeVar
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from m2h_ros.errors import ConfigError
-from m2h_ros.models.separator import Separator
+
+Model = TypeVar("Model", bound=nn.Module)
 
 _CONVS = (nn.Conv2d, nn.ConvTranspose2d)
 _ACTIVATIONS = (nn.ReLU, nn.LeakyReLU)
@@ -155,9 +157,10 @@ def _fuse_children(module: nn.Module) -> nn.Module:
     return module
 
 
-def fuse_for_inference(separator: Separator) -> Separator:
-    """An inference copy of ``separator``: BatchNorm folded into the convolutions, activations fused,
-    CPU weights prepacked for oneDNN; the original is left untouched.
+def fuse_for_inference(separator: Model) -> Model:
+    """An inference copy of ``separator`` (or of any module built from the same layers, such as the
+    listener): BatchNorm folded into the convolutions, activations fused, CPU weights prepacked for
+    oneDNN; the original is left untouched.
 
     Same class, same call signature and outputs (to float tolerance) as ``separator.eval()``; run it
     under ``torch.inference_mode()`` (``separate_clip`` does). Do not train it or save it.

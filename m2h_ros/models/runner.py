@@ -28,6 +28,7 @@ from m2h_ros.core.audio.stft import AUDIO_OUTPUTS, from_slices, masked_mixture, 
 from m2h_ros.errors import AudioError, ConfigError
 from m2h_ros.models.checkpoint import LoadedSeparator
 from m2h_ros.models.inference import fuse_for_inference
+from m2h_ros.models.listener import LoadedListener, listen
 from m2h_ros.models.separator import N_EARS, network_input
 from m2h_ros.models.threads import available_cpus, torch_threads
 
@@ -76,22 +77,28 @@ class SeparationStep:
             self._arrays[name] = array = array if name == "binaural" else array[:, 0]
         return array
 
-    def waveform(self, mixture: np.ndarray, *, config, output: str = "refined") -> np.ndarray:
-        """(B, N) audio for a listener: ``masked_mixture``, f^B's mask on each ear of the mixture (the
-        target as heard, ear mean), or ``refined``, the refined estimate of the dry target rebuilt
-        with the ear-mean mixture's phase."""
+    def waveform(self, mixture: np.ndarray, *, config, output: str = "refined", binaural: bool = False) -> np.ndarray:
+        """(B, N) audio for a listener, or with ``binaural`` (B, 2, N) where the output has two ears:
+        ``masked_mixture``, f^B's mask on each ear of the mixture (the target as heard; ear mean unless
+        binaural), or ``refined``, the refined estimate of the dry target rebuilt with the ear-mean
+        mixture's phase (monaural: (B, N) always). The ``listener`` output is
+        ``SeparatorRunner.listen``'s, not a step's."""
         if output == "masked_mixture":
             known = self.mixture is not None and np.array_equal(mixture, self.mixture[0])
-            return masked_mixture(self.binaural, mixture, config=config, spec=self.mixture[1] if known else None)
+            return masked_mixture(self.binaural, mixture, config=config, spec=self.mixture[1] if known else None,
+                                  binaural=binaural)
         if output == "refined":
             return rebuild_mixture_phase(self.refined, mixture, config=config)
+        if output == "listener":
+            raise ConfigError("the listener output comes from SeparatorRunner.listen (a runner given a listener)")
         raise ConfigError(f"audio output {output!r}: one of {', '.join(AUDIO_OUTPUTS)}")
 
 
 class SeparatorRunner:
     """f^B -> f^M -> f^R over ``n_slots`` slots with one memory per slot."""
 
-    def __init__(self, loaded: LoadedSeparator, n_slots: int, *, pose_cache: int = 0) -> None:
+    def __init__(self, loaded: LoadedSeparator, n_slots: int, *, pose_cache: int = 0,
+                 listener: LoadedListener | None = None) -> None:
         if isinstance(n_slots, bool) or not isinstance(n_slots, int) or n_slots < 1:
             raise ConfigError(f"n_slots={n_slots!r} must be a positive int")
         if isinstance(pose_cache, bool) or not isinstance(pose_cache, int) or pose_cache < 0:
@@ -106,6 +113,10 @@ class SeparatorRunner:
         self.separator = fuse_for_inference(loaded.separator)
         self.device = next(self.separator.parameters()).device
         self.memory: torch.Tensor | None = None
+        if listener is not None and listener.classes != loaded.classes:
+            raise ConfigError(f"the listener {listener.path} knows classes {list(listener.classes)}, the separator "
+                              f"{loaded.path} {list(loaded.classes)}: train the listener from this separator")
+        self.listener = None if listener is None else fuse_for_inference(listener.listener)
         # A second thread for the single-threaded f^B / f^M of cache misses (where there is a second CPU).
         self._helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="separator") \
             if self.device.type == "cpu" and available_cpus() > 1 else None
@@ -154,6 +165,14 @@ class SeparatorRunner:
             self.memory[index] = refined
         return SeparationStep(sliced=SlicedSeparation(binaural, monaural, refined),
                               mixture=None if spec is None else (audio, spec))
+
+    def listen(self, audio: np.ndarray, class_index: np.ndarray, *, binaural: bool = True) -> np.ndarray:
+        """The listener output for (B, 2, N) mixtures: (B, 2, N), or the ear mean (B, N) unless ``binaural``.
+        Independent of the slots' memory: call it beside ``step`` with the same audio."""
+        if self.listener is None:
+            raise ConfigError("this runner has no listener: pass listener=load_listener(...)")
+        ears = listen(self.listener, audio, class_index, config=self.loaded.stft)
+        return ears if binaural else ears.mean(axis=1)
 
     def _front(self, audio: np.ndarray, classes: torch.Tensor,
                spec: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:

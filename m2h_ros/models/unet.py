@@ -68,7 +68,8 @@ class UNet(nn.Module):
         init_weights(self.decoder, nonlinearity="relu")
         init_weights(self.head, nonlinearity="relu")
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, out_channels, H, W): the last decoder level's output, what the 1x1 head reads."""
         skips = []
         for layer in self.encoder:
             x = layer(x)
@@ -76,7 +77,10 @@ class UNet(nn.Module):
         x = self.decoder[0](x)
         for layer, skip in zip(self.decoder[1:], reversed(skips[:-1]), strict=True):
             x = layer(torch.cat((x, skip), dim=1))
-        return self.head(x)
+        return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.head(self.features(x))
 
 
 class MemoryRefiner(nn.Module):

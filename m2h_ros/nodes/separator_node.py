@@ -1,8 +1,9 @@
 """separator_node: f^B -> f^M -> f^R on each step's binaural audio; publishes the separated binaural,
-monaural and refined spectrograms, and audio to listen to (``audio_output``): by default f^B's mask on
-each ear of the mixture (the target as heard, ear mean), or the refined estimate with the mixture's phase.
-The spectrogram pictures and the audio's pcm-s16 track are built only while something subscribes to them
-(ros/on_demand.py); a bag gets them from ``m2h-derive`` otherwise.
+monaural and refined spectrograms, and audio to listen to (``audio_output``): by default the listener
+output (the target's early image at both ears; ``audio_channels: mono`` for their mean), or f^B's mask on
+each ear of the mixture, or the refined estimate with the mixture's phase. The spectrogram pictures and the
+audio's pcm-s16 track are built only while something subscribes to them (ros/on_demand.py); a bag gets them
+from ``m2h-derive`` otherwise.
 
 The refiner's memory restarts whenever the episode id changes. The target class comes from the
 episode's EpisodeInfo (a frame waits until its episode's info arrives) or, for a live microphone
@@ -27,6 +28,7 @@ from m2h_ros.core.audio.stft import stft  # noqa: E402
 from m2h_ros.io.derived import spectrogram_image_cdr  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
 from m2h_ros.models.device import resolve_device  # noqa: E402
+from m2h_ros.models.listener import DEFAULT_LISTENER_CHECKPOINT, load_listener  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.models.threads import inference_threads  # noqa: E402
 from m2h_ros.node_configs import SeparatorNodeConfig  # noqa: E402
@@ -48,7 +50,11 @@ class SeparatorNode(Node):
         torch.set_num_threads(self.threads)
         device = resolve_device(self.config.device, field="separator_node.device")
         loaded = load_separator(self.config.checkpoint or DEFAULT_SEPARATOR_CHECKPOINT, map_location=device)
-        self.runner = SeparatorRunner(loaded, 1)
+        listener = None
+        if self.config.audio_output == "listener":
+            listener = load_listener(self.config.listener_checkpoint or DEFAULT_LISTENER_CHECKPOINT, map_location=device)
+        self.runner = SeparatorRunner(loaded, 1, listener=listener)
+        self.binaural = self.config.audio_channels == "binaural"
         self.stft = loaded.stft
         if self.config.target_class:
             loaded.class_index(self.config.target_class)  # an unknown class fails now, not per frame
@@ -89,7 +95,8 @@ class SeparatorNode(Node):
         mixture = convert.audio_from_msg(msg, sample_rate=self.stft.sample_rate, samples=self.stft.clip_samples)
         reset = msg.episode_id != self.episode_id
         self.episode_id = msg.episode_id
-        out = self.runner.step(mixture[None], self.runner.class_indices([target]), np.array([reset]))
+        classes = self.runner.class_indices([target])
+        out = self.runner.step(mixture[None], classes, np.array([reset]))
         stamp = convert.nanoseconds_of(msg.header.stamp)
         tag = dict(episode_id=msg.episode_id, step=msg.step, stamp_ns=stamp)
         self.pub_binaural.publish(convert.spectrogram_msg(out.binaural[0], kind=Spectrogram.SEPARATED_BINAURAL,
@@ -98,7 +105,12 @@ class SeparatorNode(Node):
                                                           layout="FT", stft=self.stft, **tag))
         self.pub_refined.publish(convert.spectrogram_msg(out.refined[0], kind=Spectrogram.REFINED, layout="FT",
                                                          stft=self.stft, **tag))
-        waveform = out.waveform(mixture[None], config=self.stft, output=self.config.audio_output)
+        if self.config.audio_output == "listener":
+            waveform = self.runner.listen(mixture[None], classes, binaural=self.binaural)[0]
+        else:
+            waveform = out.waveform(mixture[None], config=self.stft, output=self.config.audio_output,
+                                    binaural=self.binaural)[0]
+        waveform = waveform.reshape(-1, waveform.shape[-1])  # (channels, samples)
         self.pub_audio.publish(convert.audio_msg(waveform, sample_rate=self.stft.sample_rate, **tag))
         self.latencies.append(time.perf_counter() - started)
         # Pictures to look at and audio to hear (for whoever subscribes), after all the controller waits for.

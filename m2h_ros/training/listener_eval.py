@@ -13,9 +13,11 @@ listener gets"):
 Estimates (waveforms):
 
 * ``microphone`` (the floor): the ear mean of the mixture, i.e. what the microphones give;
-* ``masked_mixture``: f^B's mask on each ear of the mixture, ear mean (separator/audio's default);
+* ``listener``: the listener output (``models/listener.py``, separator/audio's default), ear mean;
+  scored where a listener is given;
+* ``masked_mixture``: f^B's mask on each ear of the mixture, ear mean (``audio_output: masked_mixture``);
 * ``refined``: f^R's refined estimate of the dry target with the ear-mean mixture's phase (its
-  earlier output, still ``audio_output: refined``);
+  earliest output, still ``audio_output: refined``);
 * ``oracle``: the ideal mask min(|R|, |X|) on the ear-mean mixture X with its phase, R = the
   reference's share of the mixture (/ number of sources); scored against its own reference.
 
@@ -40,29 +42,36 @@ from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import Episode
 from m2h_ros.errors import ConfigError
 from m2h_ros.models.checkpoint import LoadedSeparator
+from m2h_ros.models.listener import LoadedListener, listen
 from m2h_ros.training.passive_eval import step_truth, step_zero_batches
 
 EARLY_S = 0.05
 REFERENCES = ("early", "as_heard")
-ESTIMATES = ("microphone", "masked_mixture", "refined", "oracle")
+ESTIMATES = ("microphone", "listener", "masked_mixture", "refined", "oracle")
 # STOI against the early image only: the reference a listener is held to (and half the cost)
 METRICS = ("si_sdr_early", "stoi_early", "si_sdr_as_heard")
 
 
-def early_image(clips: np.ndarray, rirs: np.ndarray, delays: np.ndarray, *, sample_rate: int) -> np.ndarray:
-    """(B, N) ear mean of each dry clip (B, N) through its RIR (B, 2, T) cut ``EARLY_S`` after the
-    direct sound, which arrives ``delays`` (B,) samples in."""
-    out = np.empty(clips.shape, np.float32)
+def early_images(clips: np.ndarray, rirs: np.ndarray, delays: np.ndarray, *, sample_rate: int) -> np.ndarray:
+    """(B, 2, N): each dry clip (B, N) through its binaural RIR (B, 2, T) cut ``EARLY_S`` after the
+    direct sound, which arrives ``delays`` (B,) samples in; one image per ear."""
+    out = np.empty((clips.shape[0], rirs.shape[1], clips.shape[-1]), np.float32)
     for i, (clip, rir, delay) in enumerate(zip(clips, rirs, delays)):
         cut = int(np.ceil(delay)) + round(EARLY_S * sample_rate)
-        out[i] = scipy.signal.fftconvolve(clip[None], rir[:, :cut], axes=-1)[:, : clips.shape[-1]].mean(axis=0)
+        out[i] = scipy.signal.fftconvolve(clip[None], rir[:, :cut], axes=-1)[:, : clips.shape[-1]]
     return out
 
 
+def early_image(clips: np.ndarray, rirs: np.ndarray, delays: np.ndarray, *, sample_rate: int) -> np.ndarray:
+    """(B, N) ear mean of :func:`early_images`."""
+    return early_images(clips, rirs, delays, sample_rate=sample_rate).mean(axis=1)
+
+
 def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], library: SoundLibrary, *,
-                      env_config: EnvConfig | None = None, n_envs: int = 16,
+                      env_config: EnvConfig | None = None, n_envs: int = 16, listener: LoadedListener | None = None,
                       progress: bool = True) -> dict[str, dict[str, np.ndarray]]:
-    """Per-episode scores ``{estimate: {metric: (E,)}}`` (metrics: ``METRICS``)."""
+    """Per-episode scores ``{estimate: {metric: (E,)}}`` (metrics: ``METRICS``; ``listener`` only
+    with a listener)."""
     env_config = env_config or EnvConfig(camera=False)
     if env_config.stft != loaded.stft:
         raise ConfigError(f"the environment's STFT {env_config.stft} differs from the separator's {loaded.stft}")
@@ -71,7 +80,10 @@ def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], libr
     speech = TARGET_CATEGORIES.index("speech")
     episodes = list(episodes)
     n_envs = min(n_envs, len(episodes))
-    scores = {e: {m: np.full(len(episodes), np.nan) for m in METRICS} for e in ESTIMATES}
+    if listener is not None and listener.classes != loaded.classes:
+        raise ConfigError(f"the listener knows classes {list(listener.classes)}, the separator {list(loaded.classes)}")
+    estimates = [e for e in ESTIMATES if e != "listener" or listener is not None]
+    scores = {e: {m: np.full(len(episodes), np.nan) for m in METRICS} for e in estimates}
     env = BatchEnv(episodes, library, n_envs=n_envs, config=env_config, autoreset=False)
     loaded.separator.eval()
     try:
@@ -86,12 +98,17 @@ def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], libr
             sliced = torch.from_numpy(np.ascontiguousarray(to_slices(np.abs(spec), n_slices=config.n_freq_slices)))
             with torch.no_grad():
                 step = loaded.separator(sliced, torch.from_numpy(class_map[obs["target_class"][keep]]))
+                if listener is not None:
+                    listener.listener.eval()
+                    heard = listen(listener.listener, mixture, class_map[obs["target_class"][keep]], config=config)
             binaural = from_slices(step.binaural.numpy(), n_slices=config.n_freq_slices)
             refined = from_slices(step.refined.numpy(), n_slices=config.n_freq_slices)[:, 0]
             mixture_mean = np.abs(spec.mean(axis=1))
             waves = {"microphone": mixture.mean(axis=1),
                      "masked_mixture": masked_mixture(binaural, mixture, config=config),
                      "refined": rebuild_mixture_phase(refined, mixture, config=config)}
+            if listener is not None:
+                waves["listener"] = heard.mean(axis=1)
             is_speech = obs["target_class"][keep] == speech
             for name, reference in references.items():
                 share = np.abs(stft(reference / n_sources[:, None], config=config))
@@ -107,12 +124,16 @@ def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], libr
 
 def summarize(scores: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:
     """Mean, standard error and count of each metric (NaNs, i.e. non-speech STOI, left out); for every
-    estimate also its paired difference from the microphone."""
+    estimate also its paired difference from the microphone and, where both are scored, the listener's
+    from the masked mixture."""
     out: dict[str, dict[str, float]] = {}
     for estimate, metrics in scores.items():
         row: dict[str, float] = {}
         for name, values in metrics.items():
-            for label, data in ((name, values), (f"{name}_minus_microphone", values - scores["microphone"][name])):
+            pairs = [(name, values), (f"{name}_minus_microphone", values - scores["microphone"][name])]
+            if estimate == "listener" and "masked_mixture" in scores:
+                pairs.append((f"{name}_minus_masked_mixture", values - scores["masked_mixture"][name]))
+            for label, data in pairs:
                 data = data[np.isfinite(data)]
                 row[label] = float(np.mean(data)) if len(data) else float("nan")
                 row[f"{label}_sem"] = float(np.std(data, ddof=1) / np.sqrt(len(data))) if len(data) > 1 else 0.0

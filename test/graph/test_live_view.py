@@ -159,8 +159,8 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
             assert np.abs(heard - expected).max() < 1e-4 and np.abs(expected).max() > 0.05
             matched += 1
     assert matched >= 1
-    mono = decode["/separator/audio/pcm"](received["/separator/audio/pcm"][0])
-    assert (mono.format, mono.number_of_channels, len(mono.data)) == ("pcm-s16", 1, 2 * 16000)
+    separated = decode["/separator/audio/pcm"](received["/separator/audio/pcm"][0])  # the binaural listener output
+    assert (separated.format, separated.number_of_channels, len(separated.data)) == ("pcm-s16", 2, 2 * 2 * 16000)
     # A type the project does not define, served with the definition its installed package has
     assert channels["/audio/audio_stamped"]["schemaName"] == "audio_common_msgs/msg/AudioDataStamped"
     blocks = [decode["/audio/audio_stamped"](payload) for payload in received["/audio/audio_stamped"]]

@@ -343,8 +343,9 @@ def test_play_binaural_separates_a_file_through_the_live_separator(processes, sm
     assert player.returncode == 0, err
     assert "3 frames separated" in out
     separated, out_rate = soundfile.read(tmp_path / "out.wav")
-    assert out_rate == rate and separated.shape == (len(mixture) * 441 // 320,)
-    estimate = scipy.signal.resample_poly(separated, 320, 441)[: len(reference)]
+    # the default listener output: both ears, scored as their mean
+    assert out_rate == rate and separated.shape == (len(mixture) * 441 // 320, 2)
+    estimate = scipy.signal.resample_poly(separated.mean(axis=1), 320, 441)[: len(reference)]
     gain = si_sdr(estimate, reference) - si_sdr(mixture.mean(axis=1), reference)
     assert gain > SEPARATION_FLOOR_DB, f"{gain:+.2f} dB over the mixture"
 
@@ -585,7 +586,7 @@ def test_the_bag_shows_the_run_in_foxglove_and_rviz(tiny_run):
 
     # RawAudio: pcm-s16 of exactly the recorded samples (to 16-bit resolution where not clipped).
     for pcm_topic, source, field, channels in (("/audio/pcm", "/audio", "samples", 2),
-                                               ("/separator/audio/pcm", "/separator/audio", "samples", 1),
+                                               ("/separator/audio/pcm", "/separator/audio", "samples", 2),
                                                ("/ground_truth/target/pcm", topics.GROUND_TRUTH, "target_monaural", 1)):
         pcm = [m for _, _, m in decoded[pcm_topic]]
         assert len(pcm) == len(decoded[source])

@@ -43,17 +43,23 @@ def test_separates_any_rate_and_length(tmp_path: Path, checkpoint: Path) -> None
     assert run(source, out, "--target", "speech", "--checkpoint", checkpoint) == 0
     audio, rate = sf.read(out, always_2d=True)
     info = sf.info(out)
-    assert rate == 22050 and audio.shape == (int(2.3 * 22050), 1) and info.subtype == "FLOAT"
+    # the default output, the listener's, keeps both ears
+    assert rate == 22050 and audio.shape == (int(2.3 * 22050), 2) and info.subtype == "FLOAT"
     assert np.all(np.isfinite(audio)) and np.sqrt(np.mean(audio**2)) > 1e-4
+    assert run(source, tmp_path / "mono.wav", "--target", "speech", "--checkpoint", checkpoint, "--mono") == 0
+    mono, _ = sf.read(tmp_path / "mono.wav", always_2d=True)
+    np.testing.assert_allclose(mono[:, 0], audio.mean(axis=1), atol=1e-4 * np.abs(audio).max())
     flac_out = tmp_path / "out.flac"
-    assert run(source, flac_out, "--target", "music", "--checkpoint", checkpoint) == 0
-    assert sf.info(flac_out).frames == int(2.3 * 22050)
+    assert run(source, flac_out, "--target", "music", "--checkpoint", checkpoint, "--output", "refined") == 0
+    assert sf.info(flac_out).frames == int(2.3 * 22050) and sf.info(flac_out).channels == 1
+    assert run(source, out, "--target", "music", "--checkpoint", checkpoint, "--output", "masked_mixture") == 0
+    assert sf.info(out).channels == 2
 
 
 def test_frames_carry_the_refiner_memory(checkpoint: Path) -> None:
     loaded = load_separator(checkpoint)
     audio = stereo(2.0, 16000, seed=1)
-    separated = separate_cli.separate_recording(loaded, audio, 16000, "music")
+    separated = separate_cli.separate_recording(loaded, audio, 16000, "music", output="refined")
     gain = np.sqrt(0.5 / np.mean(np.square(audio, dtype=np.float64)))
     frames = (audio * gain).reshape(2, 16000, 2).transpose(0, 2, 1)
     first = separate_clip(loaded.separator, frames[:1], 1)
@@ -64,7 +70,8 @@ def test_frames_carry_the_refiner_memory(checkpoint: Path) -> None:
     fresh = separate_clip(loaded.separator, frames[1:], 1).waveform[0] / gain
     assert not np.allclose(separated[16000:], fresh, atol=1e-3 * np.abs(fresh).max())
     # the input is normalised to the trained mixture power, so the output follows the input's scale
-    np.testing.assert_allclose(separate_cli.separate_recording(loaded, 10 * audio, 16000, "music"), 10 * separated,
+    np.testing.assert_allclose(separate_cli.separate_recording(loaded, 10 * audio, 16000, "music", output="refined"),
+                               10 * separated,
                                rtol=1e-3, atol=1e-4 * np.abs(separated).max())
 
 

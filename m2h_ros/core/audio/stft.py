@@ -280,13 +280,16 @@ def rebuild_mixture_phase(magnitude: np.ndarray, binaural_mixture: np.ndarray, *
 
 
 # What a listener is given (separator_node's audio_output); the first is the default.
-AUDIO_OUTPUTS = ("masked_mixture", "refined")
+AUDIO_OUTPUTS = ("listener", "masked_mixture", "refined")
+AUDIO_CHANNELS = ("binaural", "mono")
 
 
 def masked_mixture(binaural_magnitude: np.ndarray, binaural_mixture: np.ndarray, *,
-                   config: StftConfig = DEFAULT_STFT, spec: np.ndarray | None = None) -> np.ndarray:
-    """A separated binaural magnitude (..., 2, F, T) with each ear's own mixture phase, ear mean (..., N);
-    ``spec``: the mixture's STFT, where the caller has it (the separator computed it for its input).
+                   config: StftConfig = DEFAULT_STFT, spec: np.ndarray | None = None,
+                   binaural: bool = False) -> np.ndarray:
+    """A separated binaural magnitude (..., 2, F, T) with each ear's own mixture phase: ear mean (..., N),
+    or with ``binaural`` both ears (..., 2, N); ``spec``: the mixture's STFT, where the caller has it (the
+    separator computed it for its input).
 
     f^B predicts a ratio mask on each ear's mixture; applied there, each ear keeps its own timing and
     room, which the mean then adds coherently: the target as the microphones heard it, less the
@@ -296,4 +299,4 @@ def masked_mixture(binaural_magnitude: np.ndarray, binaural_mixture: np.ndarray,
         raise AudioError(f"binaural mixture must have shape (..., 2, N), got {mixture.shape}")
     ears = rebuild_with_phase(binaural_magnitude, stft(mixture, config=config) if spec is None else spec,
                               config=config, length=mixture.shape[-1])
-    return ears.mean(axis=-2)
+    return ears if binaural else ears.mean(axis=-2)
