@@ -3,7 +3,6 @@ camera in every node that uses them (the launch file's odom_topic:= etc.: test_l
 the driver's raw camera streams out of the bag under their own names, and refuses a name ROS would not
 take before any node starts."""
 
-import importlib.util
 import subprocess
 import sys
 
@@ -13,14 +12,12 @@ from m2h_ros import topics
 from m2h_ros.errors import ConfigError
 from m2h_ros.node_configs import ROBOT_REMAPS, robot_recording, robot_remaps
 from m2h_ros.paths import REPO_DIR
+from scripts_as_modules import load_script
 
 
 @pytest.fixture(scope="module")
 def run_pipeline():
-    spec = importlib.util.spec_from_file_location("run_pipeline_script", REPO_DIR / "scripts" / "run_pipeline.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("run_pipeline")
 
 
 def test_the_pipelines_own_names_remap_nothing_but_robot_modes_own_topics():

@@ -2,12 +2,12 @@
 a number in the README cannot drift from its result file."""
 
 import csv
-import importlib.util
 import shutil
 
 import pytest
 
 from m2h_ros.paths import REPO_DIR
+from scripts_as_modules import load_script
 
 README = REPO_DIR / "README.md"
 RESULTS = REPO_DIR / "docs" / "results"
@@ -15,10 +15,7 @@ RESULTS = REPO_DIR / "docs" / "results"
 
 @pytest.fixture(scope="module")
 def headline():
-    spec = importlib.util.spec_from_file_location("headline_table_script", REPO_DIR / "scripts" / "headline_table.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("headline_table")
 
 
 def _copy_results(tmp_path):

@@ -3,22 +3,19 @@ as plain Markdown, so GitHub shows them; scripts/make_reference.py writes them a
 a committed page is not what it writes from today's code."""
 
 import dataclasses
-import importlib.util
 
 import pytest
 
 from m2h_ros import node_configs
 from m2h_ros.paths import REPO_DIR
+from scripts_as_modules import load_script
 
 DOCS = REPO_DIR / "docs"
 
 
 @pytest.fixture(scope="module")
 def reference():
-    spec = importlib.util.spec_from_file_location("make_reference_script", REPO_DIR / "scripts" / "make_reference.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("make_reference")
 
 
 def test_every_committed_page_is_as_generated(reference, capsys):

@@ -3,15 +3,15 @@ axis-aligned, each played, recorded and scored as the main job does, and the bag
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from pipeline_helpers import ROOT, bag_messages, node_env, run_pipeline, tiny_sets
+from pipeline_helpers import bag_messages, node_env, run_pipeline, tiny_sets
 
 from m2h_ros import topics
+from scripts_as_modules import load_script
 
 pytestmark = pytest.mark.graph
 EPISODES = 3
@@ -31,9 +31,7 @@ def apartment(tmp_path_factory):
 @pytest.fixture(scope="module")
 def turned_mesh(tmp_path_factory):
     """A generated test scene exported as a glb and turned 30 degrees: no wall on a lattice axis."""
-    spec = importlib.util.spec_from_file_location("export_scene_mesh", ROOT / "scripts" / "export_scene_mesh.py")
-    export = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(export)
+    export = load_script("export_scene_mesh")
     from m2h_ros.core.world.mesh_camera import scene_mesh
     from m2h_ros.core.world.scene import load_split
 

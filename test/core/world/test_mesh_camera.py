@@ -1,7 +1,6 @@
 """Mesh camera: agreement with the exact camera on generated scenes, depth on walls that are not axis-aligned,
 rays that leave the mesh, the scene mesh's parts, the view cache on a world with a mesh, and the export."""
 
-import importlib.util
 import types
 from pathlib import Path
 
@@ -15,6 +14,7 @@ from m2h_ros.core.world.navgrid import heading_angle
 from m2h_ros.core.world.raycast import TriangleMesh
 from m2h_ros.core.world.scene import build_scene, generate_scene, load_split
 from m2h_ros.errors import ConfigError
+from scripts_as_modules import load_script
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -207,10 +207,7 @@ def test_bad_inputs_name_the_problem():
 
 
 def _export_script():
-    spec = importlib.util.spec_from_file_location("export_scene_mesh", REPO / "scripts" / "export_scene_mesh.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("export_scene_mesh")
 
 
 @pytest.mark.parametrize("suffix", ["glb", "obj", "ply"])

@@ -1,7 +1,6 @@
 """The rlr acoustics backend (RLRAudioPropagation): bank layout, rate and keys, interaural cues, materials,
 backend separation, and the clear error where the opt-in package is not installed."""
 
-import importlib.util
 import sys
 
 import numpy as np
@@ -28,6 +27,7 @@ from m2h_ros.paths import REPO_DIR
 from m2h_ros.errors import ConfigError
 from m2h_ros.node_configs import SimConfig
 from m2h_ros.sim_world import env_config
+from scripts_as_modules import load_script
 
 FS = 16000
 C = 343.0
@@ -129,15 +129,8 @@ def test_rows_have_the_banks_shape_rate_and_keys(room_rows):
     assert config.digest() == AcousticsConfig(backend="rlr", rlr_sh_order=1, **SHORT).digest()
 
 
-def _compare_engines():
-    spec = importlib.util.spec_from_file_location("compare_engines_script", REPO_DIR / "scripts" / "compare_engines.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_compare_engines_settings_are_acoustics_fields_read_as_yaml():
-    overrides = _compare_engines().config_overrides
+    overrides = load_script("compare_engines").config_overrides
     assert overrides(["wall_transmission_db=inf", "air_absorption=false", "rlr_sh_order=3"]) == {
         "wall_transmission_db": float("inf"), "air_absorption": False, "rlr_sh_order": 3}
     with pytest.raises(ConfigError, match="did you mean 'air_absorption'"):

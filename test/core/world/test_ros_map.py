@@ -3,7 +3,6 @@ writes them; the scripted apartment and corridor plans."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 
@@ -18,6 +17,7 @@ from m2h_ros.core.world.ros_map import read_ros_map, write_ros_map
 from m2h_ros.core.world.sample_worlds import (APARTMENT_DOORS, APARTMENT_FURNITURE, APARTMENT_ROOMS,
                                               apartment_grid, apartment_to_map, corridor_grid)
 from m2h_ros.errors import ConfigError, MapError
+from scripts_as_modules import load_script
 
 REPO = Path(__file__).resolve().parents[3]
 SAVER_KEYS = ["image", "mode", "resolution", "origin", "negate", "occupied_thresh", "free_thresh"]
@@ -486,10 +486,7 @@ def test_corridor_is_never_wider_on_the_grid(width, cells):
 
 
 def test_draw_apartment_map_script(tmp_path):
-    spec = importlib.util.spec_from_file_location("draw_apartment_map_script",  # scripts are not a package
-                                                  REPO / "scripts" / "draw_apartment_map.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load_script("draw_apartment_map")
     main = script.main
     assert main(["--out", str(tmp_path), "--noise", "0", "--yaw", "90"]) == 0
     ros_map = read_ros_map(tmp_path / "map.yaml")
