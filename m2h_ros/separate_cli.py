@@ -32,6 +32,7 @@ from m2h_ros.models.device import DEVICES, resolve_device
 from m2h_ros.models.listener import DEFAULT_LISTENER_CHECKPOINT, LoadedListener, load_listener
 from m2h_ros.models.runner import SeparatorRunner
 from m2h_ros.models.threads import inference_threads
+from m2h_ros.paths import PACKAGE_DIR
 
 # Checkpoint metadata entry giving the mean power of the training mixtures; inputs are scaled to it.
 MIXTURE_POWER_KEY = "mixture_power"
@@ -109,6 +110,11 @@ def _write(path: Path, audio: np.ndarray, sample_rate: int) -> None:
         sf.write(path, np.clip(audio, -1.0, 1.0), sample_rate)
 
 
+def _shipped(path: Path) -> str:
+    """A shipped file as the package names it, the same wherever the package is installed."""
+    return path.relative_to(PACKAGE_DIR.parent).as_posix()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="m2h-separate",
@@ -119,13 +125,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "listener and masked_mixture outputs unless --mono, else mono")
     parser.add_argument("--target", required=True, help="target class, one of the checkpoint's classes (e.g. speech)")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT,
-                        help=f"separator checkpoint (default: {DEFAULT_SEPARATOR_CHECKPOINT})")
+                        help=f"separator checkpoint (default: the shipped {_shipped(DEFAULT_SEPARATOR_CHECKPOINT)})")
     parser.add_argument("--output", dest="audio_output", default=AUDIO_OUTPUTS[0], choices=AUDIO_OUTPUTS,
                         help="what to extract, as separator_node's audio_output (default: %(default)s, the target's "
                         "early image at both ears)")
     parser.add_argument("--mono", action="store_true", help="the ear mean (one channel), for a speech recogniser")
     parser.add_argument("--listener", type=Path, default=DEFAULT_LISTENER_CHECKPOINT,
-                        help=f"listener checkpoint for --output listener (default: {DEFAULT_LISTENER_CHECKPOINT})")
+                        help=f"listener checkpoint for --output listener (default: the shipped {_shipped(DEFAULT_LISTENER_CHECKPOINT)})")
     parser.add_argument("--device", default="cpu", choices=DEVICES,
                         help="torch device: cpu (default), cuda, or auto (CUDA when present)")
     return parser
