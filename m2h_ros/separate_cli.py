@@ -112,7 +112,7 @@ def _write(path: Path, audio: np.ndarray, sample_rate: int) -> None:
 
 def _shipped(path: Path) -> str:
     """A shipped file as the package names it, the same wherever the package is installed."""
-    return path.relative_to(PACKAGE_DIR.parent).as_posix()
+    return path.relative_to(PACKAGE_DIR.parent).as_posix() if path.is_relative_to(PACKAGE_DIR.parent) else str(path)
 
 
 def build_parser() -> argparse.ArgumentParser:
