@@ -8,6 +8,8 @@ again.
         [--metric si_sdr|si_sdr_mixture_phase|stft_distance|success|spl] [--out paired.md] [--png paired.png]
     python scripts/paired.py shipped/results.json candidate/results.json --tags shipped,candidate \
         --reference move2hear:shipped
+    python scripts/paired.py docs/results/near_target/results.csv --reference stand_in_place \
+        --controllers stand_in_place,move2hear --count 200
 
 Several results files (``results.json`` of ``scripts/evaluate.py``, the evaluator node or ``m2h-eval``)
 are read as one set, so runs of the same episodes compare too. A ``results.csv`` (what ``docs/results/``
@@ -19,6 +21,8 @@ the reference evaluated beside each). Where they differ (say, two policy checkpo
 it is an error. Controllers that agree keep their name (``<controller>:<tag>`` still finds them as a
 reference). A sweep's episodes (``scripts/experiments/*``: a ``condition`` each) count as one controller per
 condition, ``<controller>[<condition>]`` (e.g. ``move2hear[T = 20]``), tagged after it.
+``--controllers`` keeps those controllers and ``--count N`` each task and sound split's first N episodes (by
+episode id, the ones ``evaluate.py --count N`` plays): a larger run's figures on a smaller run's episodes.
 ``--png`` draws the differences as a forest plot (one panel per reference and task, each controller's
 mean and 95% CI per sound split).
 """
@@ -43,6 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "controllers become <controller>:<tag>")
     parser.add_argument("--metric", choices=PAIRED_METRICS, default="si_sdr",
                         help="a final-step score, or far-target navigation's success (paired SR) or SPL")
+    parser.add_argument("--controllers", default="", help="only these controllers, comma-separated (default: all)")
+    parser.add_argument("--count", type=int, default=None,
+                        help="only each task and sound split's first COUNT episodes, by episode id")
     parser.add_argument("--out", type=Path, default=None, help="also write the tables to this Markdown file")
     parser.add_argument("--png", type=Path, default=None, help="also draw the differences as a forest plot")
     return parser
@@ -75,6 +82,26 @@ def load(paths: list[Path], tags: list[str]) -> list[EpisodeResult]:
             seen[key] = path, result
             results.append(result)
     return results
+
+
+def selected(results: list[EpisodeResult], controllers: list[str], count: int | None) -> list[EpisodeResult]:
+    """The results of ``controllers`` (all if empty) on each task and sound split's first ``count`` episodes."""
+    if count is not None and count < 1:
+        raise ConfigError(f"--count {count} must be at least 1")
+    known = {r.controller for r in results}
+    unknown = [c for c in controllers if c not in known]
+    if unknown:
+        raise ConfigError(f"--controllers names {', '.join(unknown)}, not in the results; they hold "
+                          f"{', '.join(sorted(known))}")
+    if controllers:
+        results = [r for r in results if r.controller in controllers]
+    if count is None:
+        return results
+    first: dict[tuple[str, str], set[str]] = {}
+    for task, split in {(r.task, r.sound_split) for r in results}:
+        ids = sorted({r.episode_id for r in results if (r.task, r.sound_split) == (task, split)})
+        first[task, split] = set(ids[:count])
+    return [r for r in results if r.episode_id in first[r.task, r.sound_split]]
 
 
 def _key(result: EpisodeResult) -> tuple[str, str, str, str]:
@@ -119,7 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command = shlex.join(["python", "scripts/paired.py", *(sys.argv[1:] if argv is None else argv)])
     tags = [t for t in args.tags.split(",") if t]
-    rows = differences(load(args.results, tags), [r for r in args.reference.split(",") if r], args.metric)
+    results = selected(load(args.results, tags), [c for c in args.controllers.split(",") if c], args.count)
+    rows = differences(results, [r for r in args.reference.split(",") if r], args.metric)
     if args.png:
         plot_paired([row for per_reference in rows.values() for row in per_reference], args.png)
     text = "\n".join(paired_section(r, reference=ref, metric=args.metric) for ref, r in rows.items())

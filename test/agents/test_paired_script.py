@@ -136,3 +136,19 @@ def test_success_and_spl_pair_as_episode_figures(paired, tmp_path, capsys):
         assert "| a | far_target | heard | 3 | +0.33 ± 1.43 |" in out  # (1, 0, 0)
         assert paired.main([str(path), "--reference", "b", "--metric", "spl"]) == 0
         assert "| a | far_target | heard | 3 | +0.17 ± 1.90 |" in capsys.readouterr().out  # (1, 0, -0.5)
+
+
+def test_a_larger_run_pairs_on_a_smaller_runs_episodes(paired, tmp_path, capsys):
+    path = write_results(run("stand_in_place", {"e0": 0.0, "e1": 0.0, "e2": 0.0})
+                         + run("move2hear", {"e0": 1.0, "e1": 3.0, "e2": 100.0})
+                         + run("doa", {"e0": 5.0, "e1": 5.0, "e2": 5.0}), tmp_path, plot=False)["json"]
+    assert paired.main([str(path), "--reference", "stand_in_place", "--controllers", "stand_in_place,move2hear",
+                        "--count", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "| move2hear | near_target | heard | 2 | +2.00 ± 12.71 |" in out  # e2 left out
+    assert "doa" not in out
+    assert paired.main([str(path), "--reference", "stand_in_place", "--controllers", "oracle"]) == 2
+    assert "--controllers names oracle, not in the results; they hold doa, move2hear, stand_in_place" \
+        in capsys.readouterr().err
+    assert paired.main([str(path), "--reference", "stand_in_place", "--count", "0"]) == 2
+    assert "--count 0 must be at least 1" in capsys.readouterr().err
