@@ -93,7 +93,7 @@ class BaseNode(Node):
             # behind start-up): as long as a move may take.
             wait = self.config.odom_timeout_s if self.odom_at > -float("inf") else self.config.move_timeout_s
             if now - self.held_since > wait:
-                self.finish(Outcome(ABORTED, f"no odometry on {topics.ODOM} within {wait:g} s of the command",
+                self.finish(Outcome(ABORTED, f"no odometry on {self.resolve_topic_name(topics.ODOM)} within {wait:g} s of the command",
                                     float("nan"), float("nan"), now - self.held_since))
             return
         outcome = self.mover.tick(now, self.pose)

@@ -93,7 +93,7 @@ class EpisodeDriver(Node):
         if start_ns < self.ready_after_ns:
             return
         if self.odom is None:
-            self.get_logger().warning(f"no odometry on {topics.ODOM} yet: step {self.step} waits for it",
+            self.get_logger().warning(f"no odometry on {self.resolve_topic_name(topics.ODOM)} yet: step {self.step} waits for it",
                                       throttle_duration_sec=5.0)
             return
         if any(topic not in self.images for topic in self.pub_images):
