@@ -34,3 +34,7 @@ BINAURAL_IMAGE = "spectrogram/separated_binaural"  # the same for f^B's separate
 MONAURAL_IMAGE = "spectrogram/monaural"  # f^M's monaural estimate (separator)
 REFINED_IMAGE = "spectrogram/refined"  # f^R's refined estimate (separator)
 TARGET_IMAGE = "/ground_truth/spectrogram/target"  # the target's dry clip (evaluator)
+
+# The pipeline's state: transient-local, the last message is what a late joiner needs. Its step streams
+# are transient-local too (a deep history, for lag), and discovery does not tell a publisher's depth.
+STATE = (EPISODE, MAP, TF_STATIC)

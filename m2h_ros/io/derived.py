@@ -154,6 +154,12 @@ class Derived:
                  **({self.path_topic: MARKERS} if self.path_topic else {})}
         return {TF: TF_MESSAGE, TF_STATIC: TF_MESSAGE, **{pcm_topic(a): RAW_AUDIO for a in self.audio}, **views}
 
+    def sources(self) -> dict[str, str]:
+        """Each topic of ``topics()`` with the topic it is made from."""
+        made = {TF: self.odom, TF_STATIC: self.pose, **{pcm_topic(a): a for a in self.audio},
+                **{picture: source for source, picture in self.pictures.items()}}
+        return {**made, **({self.path_topic: self.pose} if self.path_topic else {})}
+
     def feed(self, topic: str, msgtype: str, data: bytes | memoryview) -> list[tuple[str, str, bytes]]:
         out = []
         if topic == self.odom and msgtype == "nav_msgs/msg/Odometry":

@@ -6,24 +6,32 @@ Foxglove decodes each with no package of ours installed. Beside them, the topics
 recorder (io/derived.py), made the same way, unless the graph publishes them itself: the TF tree
 (``/tf``, ``/tf_static``) and the audio as Foxglove ``RawAudio`` (``<audio topic>/pcm``, ``pcm-s16``),
 computed only while a client listens to one of them. A client that subscribes to a latched topic (the
-map, the static frames, the episode) gets its last message at once, as a late ROS subscriber would."""
+map, the static frames, the episode) gets its last message at once, as a late ROS subscriber would.
+
+As foxglove_bridge does, the node subscribes in ROS only to what some client watches (and to the latched
+topics, to have their last message): a live view that nobody opens costs the graph nothing, and the
+nodes build a picture or a playable track only while a client shows it."""
 
 import foxglove
 from foxglove import Channel, Schema
 from foxglove.websocket import ServerListener
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
+from rclpy.subscription import Subscription
 
 from m2h_ros.errors import LiveViewError
-from m2h_ros.io.derived import TF_STATIC, Derived
+from m2h_ros import topics
+from m2h_ros.io.derived import TF_STATIC, Derived, absolute
 from m2h_ros.io.msg_defs import ensure_known, typestore
 from m2h_ros.node_configs import LiveViewConfig
-from m2h_ros.ros.introspection import adapted_qos, definition_mismatch, offered_topics
+from m2h_ros.ros.graph import PIPELINE_TOPICS
+from m2h_ros.ros.introspection import OfferedTopic, adapted_qos, definition_mismatch, offered_topics
 from m2h_ros.ros.params import declare_config
-from m2h_ros.ros.qos import EPISODE_HISTORY, subscription_events
+from m2h_ros.ros.qos import subscription_events
 from m2h_ros.ros.spin import run_node
 
 IGNORED_TOPICS = frozenset({"/parameter_events"})
+DEMAND_PERIOD_S = 0.1  # how soon a client's (un)subscription is followed in ROS
 
 
 class LatchedReplay(ServerListener):
@@ -54,8 +62,15 @@ class LiveViewNode(Node):
         self.derived = Derived(namespace=self.get_namespace())
         self.derived_channels = {topic: self.channel(topic, type_name)
                                  for topic, type_name in self.derived.topics().items()}
+        self.derived_sources = self.derived.sources()
+        namespace = self.get_namespace()
+        self.state_topics = {absolute(name, namespace) for name in topics.STATE}
+        self.pipeline_topics = {absolute(name, namespace) for name in PIPELINE_TOPICS}
         self.latched: set[str] = {TF_STATIC}
+        self.offers: dict[str, OfferedTopic] = {}  # served graph topic -> its offer (type), subscribed while watched
+        self.subscribed: dict[str, Subscription] = {}
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
+        self.create_timer(DEMAND_PERIOD_S, self.follow_demand)
         self.discover_topics()
         self.get_logger().info(f"serving the graph to Foxglove on ws://{self.config.host}:{self.server.port}")
 
@@ -86,17 +101,41 @@ class LiveViewNode(Node):
             if derived is not None:  # the graph publishes it (tf2_msgs installed): serve that one
                 derived.close()
             self.channels[topic] = channel
-            # Latched: every publisher keeps its last few messages for late joiners (the map, the static
-            # frames, the episode); a step stream keeps STEP_HISTORY (128) for lag, not as state.
-            offers = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
-            if offers and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL and q.depth <= EPISODE_HISTORY
-                              for q in offers):
+            if self.is_state(topic):
                 self.latched.add(topic)
-            self.create_subscription(offer.msg_type, topic,
-                                     lambda data, topic=topic, kind=offer.type_name: self.forward(topic, kind, data),
-                                     adapted_qos(self, topic), raw=True,
-                                     event_callbacks=subscription_events(self.get_logger(), topic))
+            self.offers[topic] = offer
             self.get_logger().info(f"serving {topic} [{offer.type_name}]")
+        self.follow_demand()
+
+    def is_state(self, topic: str) -> bool:
+        """Latched: the pipeline's state topics (the map, the static frames, the episode), and another
+        package's topic whose every publisher is transient-local (a map server's map, a robot description)."""
+        if topic in self.state_topics:
+            return True
+        if topic in self.pipeline_topics:  # a step stream: transient-local for lag, not as state
+            return False
+        offers = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+        return bool(offers) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offers)
+
+    def watched(self, topic: str) -> bool:
+        """Whether ``topic`` is needed in ROS: latched, shown by a client, or the source of a derived topic
+        a client shows."""
+        if topic in self.latched or self.channels[topic].has_sinks():
+            return True
+        return any(channel.has_sinks() for derived, channel in self.derived_channels.items()
+                   if self.derived_sources.get(derived) == topic)
+
+    def follow_demand(self) -> None:
+        """Subscribes in ROS to the served topics that are watched now, and unsubscribes from the others."""
+        for topic, offer in self.offers.items():
+            if self.watched(topic) == (topic in self.subscribed):
+                continue
+            if topic in self.subscribed:
+                self.destroy_subscription(self.subscribed.pop(topic))
+                continue
+            self.subscribed[topic] = self.create_subscription(
+                offer.msg_type, topic, lambda data, topic=topic, kind=offer.type_name: self.forward(topic, kind, data),
+                adapted_qos(self, topic), raw=True, event_callbacks=subscription_events(self.get_logger(), topic))
 
     def forward(self, topic: str, type_name: str, data: bytes) -> None:
         now = self.get_clock().now().nanoseconds

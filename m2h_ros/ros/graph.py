@@ -15,7 +15,7 @@ CONSUMERS = {
     "evaluator_node": (topics.GROUND_TRUTH, topics.AUDIO, topics.AGENT_POSE, topics.EPISODE, topics.REFINED,
                        topics.COMMAND),
 }
-PIPELINE_TOPICS = tuple(value for name, value in vars(topics).items() if name.isupper())
+PIPELINE_TOPICS = tuple(value for name, value in vars(topics).items() if name.isupper() and isinstance(value, str))
 # What a recorder may leave to m2h-derive (keep_derived: false): waited for only from a recorder that
 # subscribes to one of them (keep_derived: true), so that it has every picture from step 0.
 DERIVED = frozenset(derived_topics())

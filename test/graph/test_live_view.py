@@ -1,34 +1,32 @@
-"""live_view_node serves a pipeline run to a Foxglove WebSocket client (a plain `websockets` client speaking
-the protocol): every topic advertised as a ROS 2 channel with its message definition, messages that decode
-with that definition alone and equal what the recorder wrote, the derived TF tree and pcm-s16 audio; a
-robot driver's own type (audio_common_msgs) with the definition from its installed package; bound to
-localhost; a taken port is named."""
+"""live_view_node serves a pipeline run to a Foxglove WebSocket client (m2h_ros.io.foxglove_watch, a plain
+`websockets` client speaking the protocol): every topic advertised as a ROS 2 channel with its message
+definition, messages that decode with that definition alone and equal what the recorder wrote, the derived
+TF tree and pcm-s16 audio; a robot driver's own type (audio_common_msgs) with the definition from its
+installed package; only what a client watches is subscribed to, so only that is built; bound to localhost;
+a taken port is named."""
 
 from __future__ import annotations
 
 import asyncio
-import json
 import socket
 import struct
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
-import websockets
 from mcap_ros2._dynamic import generate_dynamic
 from pipeline_helpers import ROOT, ROS2RUN, node_env, tiny_sets
+from test_derived_topics import sent
 from test_executables import wait_for_line
 from test_recorder import stale_audio_info_env
 from rosbags.rosbag2 import Reader
 
+from m2h_ros.io.foxglove_watch import watch
 from m2h_ros.io.msg_defs import typestore
 from m2h_ros.io.derived import PCM_GAIN
 
 pytestmark = pytest.mark.graph
-SUBPROTOCOL = "foxglove.sdk.v1"  # the only one foxglove-sdk 0.30's server accepts
-MESSAGE_DATA = 1  # binary opcode of a message on a subscribed channel
 # Messages the first client waits for on each topic (/tf_static is sent once, then on each subscription).
 CHECKED = {"/audio": 3, "/odom": 3, "/scores/step": 3, "/audio/pcm": 3, "/separator/audio/pcm": 3, "/tf": 3,
            "/tf_static": 1, "/audio/audio_stamped": 3}
@@ -39,53 +37,6 @@ def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
-
-
-UNKNOWN_CHANNEL = "Unknown channel ID: "
-
-
-async def subscribe(ws, channel_ids: list[int]) -> None:
-    """One subscription per channel, its id the channel's."""
-    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c, "channelId": c} for c in channel_ids]}))
-
-
-async def watch(port: int, *, wanted: dict[str, int], timeout: float) -> tuple[dict, dict]:
-    """Connect (retrying until the server is up), subscribe to every channel as it is advertised and
-    collect messages until each wanted topic has its count: (channels by topic, topic -> payloads)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            ws = await websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None)
-            break
-        except OSError:
-            if time.monotonic() > deadline:
-                raise
-            await asyncio.sleep(0.2)
-    channels: dict[int, dict] = {}
-    received: dict[str, list[bytes]] = {}
-    async with ws:
-        while any(len(received.get(t, ())) < n for t, n in wanted.items()) and time.monotonic() < deadline:
-            try:
-                frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
-            except TimeoutError:
-                continue
-            except websockets.ConnectionClosed:  # the run ended: the assertions name what was missing
-                break
-            if isinstance(frame, str):
-                op = json.loads(frame)
-                if op["op"] == "advertise":
-                    new = [c for c in op["channels"] if c["id"] not in channels]
-                    channels.update({c["id"]: c for c in new})
-                    await subscribe(ws, [c["id"] for c in new])
-                elif op["op"] == "status" and op["message"].startswith(UNKNOWN_CHANNEL):
-                    # foxglove-sdk can advertise a channel a moment before it accepts subscriptions to it
-                    # (it answers "Unknown channel ID"): ask again, as a client that retries would.
-                    await asyncio.sleep(0.05)
-                    await subscribe(ws, [int(op["message"][len(UNKNOWN_CHANNEL):])])
-            elif frame[0] == MESSAGE_DATA:
-                subscription, _ = struct.unpack_from("<IQ", frame, 1)  # subscription id = channel id here
-                received.setdefault(channels[subscription]["topic"], []).append(frame[13:])
-    return {c["topic"]: c for c in channels.values()}, received
 
 
 def recorded(bag, topic: str) -> dict[bytes, int]:
@@ -105,15 +56,18 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
                             *tiny_sets()], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                            env=node_env(small_data_dir), cwd=ROOT)
     try:
-        channels, received = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
+        first = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
         listening = listening_addresses(port)  # while the run is surely still on (it ends some 20 s in)
-        _, late = asyncio.run(watch(port, wanted=LATCHED, timeout=5.0))  # the map went out steps ago
+        late = asyncio.run(watch(port, wanted=LATCHED, timeout=5.0)).payloads  # the map went out steps ago
     finally:
         out, _ = run.communicate(timeout=240)
     assert run.returncode == 0, out
     assert f"live view: ws://127.0.0.1:{port}" in out
     assert listening == ["127.0.0.1"]  # the default binds to this machine only
+    # Built for the client that watches everything: every picture and track of the separator.
+    assert all(count > 0 for count in sent((tmp_path / "logs" / "separator_node.log").read_text()).values())
     store = typestore()
+    channels, received = first.channels, first.payloads
     ros_topics = {"/audio", "/odom", "/agent_pose", "/episode", "/camera/rgb/image_raw", "/camera/depth/image_raw",
                   "/separator/refined", "/separator/audio", "/cmd", "/scores/step", "/ground_truth/target"}
     assert ros_topics <= set(channels), sorted(channels)
@@ -165,6 +119,27 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
     assert channels["/audio/audio_stamped"]["schemaName"] == "audio_common_msgs/msg/AudioDataStamped"
     blocks = [decode["/audio/audio_stamped"](payload) for payload in received["/audio/audio_stamped"]]
     assert all(len(b.audio.data) == 960 * 2 * 2 for b in blocks)  # 20 ms of 2 channels of S16 at 48 kHz
+
+
+def test_the_nodes_build_only_what_a_client_watches(small_library, small_data_dir, processes, tmp_path):
+    port = free_port()
+    processes.start([sys.executable, str(ROOT / "test" / "graph" / "audio_capture_stand_in.py")])
+    run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
+                            "--episodes", "1", "--controller", "random", "--mode", "free_running", "--rate", "2",
+                            "--live-view", str(port), "--set", "live_view_node.discovery_period_s=0.1",
+                            *tiny_sets()], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                           env=node_env(small_data_dir), cwd=ROOT)
+    try:
+        # A client showing the odometry only: the live view subscribes to it (and the latched topics) alone.
+        odometry = asyncio.run(watch(port, wanted={"/odom": 3}, timeout=120.0, only={"/odom"}))
+    finally:
+        out, _ = run.communicate(timeout=240)
+    assert run.returncode == 0, out
+    assert odometry.counts["/odom"] >= 3 and set(odometry.counts) == {"/odom"}
+    assert {"/audio/pcm", "/tf", "/odom"} <= set(odometry.channels)  # offered, but only the odometry shown
+    for node in ("separator_node", "evaluator_node", "sim_node"):
+        counts = sent((tmp_path / "logs" / f"{node}.log").read_text())
+        assert counts and not any(counts.values()), (node, counts)
 
 
 def listening_addresses(port: int) -> list[str]:
