@@ -46,15 +46,21 @@ def recorded(bag, topic: str) -> dict[bytes, int]:
         return {bytes(data): k for k, (_, _, data) in enumerate(reader.messages(connections=conns))}
 
 
-def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir, processes, tmp_path):
+def watched_run(processes, data_dir, out, *, episodes: int) -> tuple[int, subprocess.Popen]:
+    """A tiny pipeline run at 2 steps/s with the live view on a free port: (the port, the run)."""
     port = free_port()
     processes.start([sys.executable, str(ROOT / "test" / "graph" / "audio_capture_stand_in.py")])
-    # Free-running at 2 steps/s: two episodes last about 20 s, time for two clients to subscribe.
-    run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
-                            "--episodes", "2", "--controller", "random", "--mode", "free_running", "--rate", "2",
-                            "--live-view", str(port), "--set", "live_view_node.discovery_period_s=0.1",
+    run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(out),
+                            "--episodes", str(episodes), "--controller", "random", "--mode", "free_running",
+                            "--rate", "2", "--live-view", str(port), "--set", "live_view_node.discovery_period_s=0.1",
                             *tiny_sets()], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                           env=node_env(small_data_dir), cwd=ROOT)
+                           env=node_env(data_dir), cwd=ROOT)
+    return port, run
+
+
+def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir, processes, tmp_path):
+    # Free-running at 2 steps/s: two episodes last about 20 s, time for two clients to subscribe.
+    port, run = watched_run(processes, small_data_dir, tmp_path, episodes=2)
     try:
         first = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
         listening = listening_addresses(port)  # while the run is surely still on (it ends some 20 s in)
@@ -122,13 +128,7 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
 
 
 def test_the_nodes_build_only_what_a_client_watches(small_library, small_data_dir, processes, tmp_path):
-    port = free_port()
-    processes.start([sys.executable, str(ROOT / "test" / "graph" / "audio_capture_stand_in.py")])
-    run = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "run_pipeline.py"), "--out", str(tmp_path),
-                            "--episodes", "1", "--controller", "random", "--mode", "free_running", "--rate", "2",
-                            "--live-view", str(port), "--set", "live_view_node.discovery_period_s=0.1",
-                            *tiny_sets()], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                           env=node_env(small_data_dir), cwd=ROOT)
+    port, run = watched_run(processes, small_data_dir, tmp_path, episodes=1)
     try:
         # A client showing the odometry only: the live view subscribes to it (and the latched topics) alone.
         odometry = asyncio.run(watch(port, wanted={"/odom": 3}, timeout=120.0, only={"/odom"}))
