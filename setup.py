@@ -57,7 +57,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/params", glob("params/*.yaml") + glob("params/*.xml")),
+        (f"share/{PACKAGE}/params", glob("params/*.yaml") + glob("params/*.xml") + glob("params/*.json")),
         (f"share/{PACKAGE}/params/recipes", glob("params/recipes/*")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],

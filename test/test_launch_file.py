@@ -273,13 +273,13 @@ def test_launch_and_launch_ros_are_declared_and_the_recipes_installed():
 
 
 def test_the_installed_launch_files_start_the_installed_params(monkeypatch):
-    """What `ros2 launch m2h_ros FILE` runs: each launch file and params file of the source tree is in the
-    package share the ament index finds (setup.sh's colcon build), the same bytes, and each installed
-    launch file starts its nodes with the installed params files."""
+    """What `ros2 launch m2h_ros FILE` runs: each launch file and params file (the Foxglove layout too) of
+    the source tree is in the package share the ament index finds (setup.sh's colcon build), the same
+    bytes, and each installed launch file starts its nodes with the installed params files."""
     from ament_index_python.packages import get_package_share_directory
 
     share = Path(get_package_share_directory("m2h_ros"))
-    for pattern in ("launch/*.launch.py", "params/*.yaml", "params/*.xml", "params/recipes/*"):
+    for pattern in ("launch/*.launch.py", "params/*.yaml", "params/*.xml", "params/*.json", "params/recipes/*"):
         sources = sorted(ROOT.glob(pattern))
         assert sources, pattern
         for source in sources:
