@@ -6,8 +6,8 @@ robot's audio_common stream; episode_driver turns the stream into steps (a step'
 frame is captured after the base finished the step before), separator_node and controller_node work
 as in simulation, base_node carries each command out on the base (odom in, cmd_vel out), and the
 recorder writes the run to a fresh runs/<date-time>/bag. A driver whose topics have other names
-is remapped: odom_topic:=, cmd_vel_topic:=, rgb_topic:=, depth_topic:= (with other camera names, also
-record_exclude:=[RGB,DEPTH] to leave its raw streams out of the bag). The shipped Move2Hear policies read the
+is remapped: odom_topic:=, cmd_vel_topic:=, rgb_topic:=, depth_topic:= (the bag leaves out the raw
+camera streams under the names given, unless record_exclude:= says otherwise). The shipped Move2Hear policies read the
 camera: camera:=true (default) passes the robot's RGB-D images (camera/rgb/image_raw and
 camera/depth/image_raw, 32FC1 metres, at the policy's 128 x 128); camera:=false runs only controllers
 that read no images (the training-free baselines) and refuses the others at start. The launch ends
@@ -28,7 +28,8 @@ from m2h_ros.ros.launching import (Argument, check_arguments, dds_profile, decla
                                    run_directory, stop_with_launch)
 
 NODES = ROBOT_CONFIGS  # node -> its config dataclass, in start order
-ROBOT_EXCLUDE = "[" + ",".join(ROBOT_RECORDING["exclude"]) + "]"  # not the raw camera streams
+# Not the raw camera streams, under the driver's names: a list its declaration fills in at launch.
+ROBOT_EXCLUDE = ["[", LaunchConfiguration("rgb_topic"), ",", LaunchConfiguration("depth_topic"), "]"]
 ARGUMENTS = (
     Argument("target_class", "episode_driver", "target_class"),
     Argument("steps", "episode_driver", "steps"),
@@ -45,7 +46,10 @@ ARGUMENTS = (
              description="replace a bag already in the run directory (else the recorder stops, naming it)"),
     # What the bag keeps: YAML lists of topic names or patterns ([/camera/*,/tf]), rate limits TOPIC=HZ.
     Argument("record_topics", "recorder_node", "topics"),
-    Argument("record_exclude", "recorder_node", "exclude", default=ROBOT_EXCLUDE),
+    Argument("record_exclude", "recorder_node", "exclude", default=ROBOT_EXCLUDE,
+             description="topics never to record, names or shell-style patterns (default: the raw camera "
+                         "streams under the names rgb_topic:= and depth_topic:= give; each step's images are "
+                         "recorded apart)"),
     Argument("record_max_rate_hz", "recorder_node", "max_rate_hz"),
     Argument("keep_derived", "recorder_node", "keep_derived"),
     Argument("compression", "recorder_node", "compression", default=ROBOT_RECORDING["compression"]),
@@ -77,6 +81,7 @@ def generate_launch_description():
              for name in NODES}
     handlers = [exit_handler(action, name, finishes_run=name == "episode_driver") for name, action in nodes.items()]
     # Every argument checked before any node starts; each node stops should the launch process die.
-    return LaunchDescription([*declare(ARGUMENTS, configs), *microphones, *driver, check_arguments(ARGUMENTS, configs),
+    # The driver's names first: record_exclude's default is made of them.
+    return LaunchDescription([*driver, *declare(ARGUMENTS, configs), *microphones, check_arguments(ARGUMENTS, configs),
                               stop_with_launch(), *dds_profile(share), *nodes.values(),
                               *handlers])

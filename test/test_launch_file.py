@@ -379,7 +379,10 @@ def argument_check(description):
 
 def check_with(description, defaults: dict[str, str], **values: str) -> None:
     check, _ = argument_check(description)
-    assert check(types.SimpleNamespace(launch_configurations={**defaults, **values})) == []
+    given = {**defaults, **values}
+    # As launch holds them: each declared default performed (a substitution list becomes its string).
+    configurations = {name: perform(value, given) for name, value in given.items()}
+    assert check(types.SimpleNamespace(launch_configurations=configurations)) == []
 
 
 def test_every_argument_is_checked_before_any_node_starts(description, defaults):
@@ -438,4 +441,9 @@ def test_what_the_bag_keeps_is_set_by_arguments_and_robot_mode_leaves_out_the_ra
     robot_defaults = {argument(a, 0, "name"): a.kwargs["default_value"]
                       for a in of_kind(robot, "DeclareLaunchArgument")}
     recorder = resolved_config(nodes(robot)["recorder_node"], robot_defaults)
-    assert recorder.exclude == ("/camera/rgb/image_raw", "/camera/depth/image_raw") and recorder.compression == "zstd"
+    assert recorder.exclude == (topics.RGB, topics.DEPTH) and recorder.compression == "zstd"  # matched as /camera/...
+    # A driver with its own camera names: its raw streams stay out of the bag under those names.
+    robot_defaults.update(rgb_topic="/head/color", depth_topic="/head/depth")
+    assert resolved_config(nodes(robot)["recorder_node"], robot_defaults).exclude == ("/head/color", "/head/depth")
+    declared = [argument(a, 0, "name") for a in of_kind(robot, "DeclareLaunchArgument")]
+    assert declared.index("rgb_topic") < declared.index("record_exclude")  # declared before its default uses it

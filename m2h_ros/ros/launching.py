@@ -46,7 +46,7 @@ class Argument:
     name: str
     node: str
     field: str
-    default: str | None = None  # None: the value in the node's params file
+    default: str | list | None = None  # None: the value in the node's params file; a list: substitutions
     description: str | None = None  # None: the field's own
 
 
@@ -69,7 +69,7 @@ def declare(arguments: tuple[Argument, ...], configs: dict[str, Config]) -> list
             value = "[" + ",".join(map(str, value)) + "]"
         choices = field.metadata["choices"]
         actions.append(DeclareLaunchArgument(
-            argument.name, default_value=str(value),
+            argument.name, default_value=value if isinstance(value, list) else str(value),
             description=argument.description or f"{argument.node}.{argument.field}: {field.metadata['description']}",
             choices=[str(c) for c in choices] if choices else None))
     return actions
