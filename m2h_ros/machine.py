@@ -12,6 +12,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import platform
+import resource
 import time
 from pathlib import Path
 from typing import Any
@@ -92,3 +93,18 @@ def process_cpu_seconds(pid: int) -> float:
     helper processes' CPU to its own this way."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def peak_rss_mib() -> float:
+    """This process's own peak resident memory in MiB: ``VmHWM`` from ``/proc/self/status``.
+
+    Not ``getrusage``'s ``ru_maxrss``: Linux keeps that across ``fork`` + ``exec``, so a process spawned
+    by a parent holding 3 GB reports 3 GB before it allocates anything. ``VmHWM`` belongs to the address
+    space, which ``exec`` replaces. Falls back to ``ru_maxrss`` where there is no ``/proc``."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -3,9 +3,12 @@
 and an ideal-mask oracle, by SI-SDR and STOI against the target's early image and as heard.
 
     python scripts/eval_listener.py --task near_target --count 500 --out docs/results/live_output/near_target
+    python scripts/eval_listener.py --controller move2hear --count 500 --out docs/results/listener/moved
 
-Step 0 (Stand In-Place) of the first --count test episodes of each sound split; definitions in
-``m2h_ros/training/listener_eval.py``. Writes results.md and results.json into --out.
+Step 0 (Stand In-Place) of the first --count test episodes of each sound split, or with --controller
+the last step of the episodes it plays (near-target: they end together), where every estimate is
+also paired against Stand In-Place's microphone at that step (its own run of the same episodes).
+Definitions in ``m2h_ros/training/listener_eval.py``. Writes results.md and results.json into --out.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import time
 from datetime import date
 from pathlib import Path
 
+from m2h_ros.agents.registry import controller_class, make_controller
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
@@ -25,24 +29,27 @@ from m2h_ros.errors import reports_errors
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
 from m2h_ros.models.listener import DEFAULT_LISTENER_CHECKPOINT, load_listener
 from m2h_ros.paths import file_label, repo_relative
-from m2h_ros.training.listener_eval import ESTIMATES, REFERENCES, evaluate_listener, summarize
+from m2h_ros.training.listener_eval import ESTIMATES, REFERENCES, STAND_IN_PLACE, evaluate_listener, summarize
 
 LABELS = {"microphone": "microphone (floor)", "listener": "output: listener", "masked_mixture": "masked mixture",
-          "refined": "refined", "oracle": "ideal mask (oracle)"}
+          "refined": "refined", "oracle": "ideal mask (oracle)", STAND_IN_PLACE: "microphone, Stand In-Place"}
 REFERENCE_LABELS = {"early": "early image (direct + 50 ms)", "as_heard": "as heard (whole RIR)"}
 
 
 def format_table(results: dict[str, dict]) -> str:
+    moved = any(STAND_IN_PLACE in summary for summary in results.values())
+    baselines = ["microphone", *([STAND_IN_PLACE] if moved else [])]
     lines = []
     for reference in REFERENCES:
+        header = " | ".join(f"vs {LABELS[b].split(' (')[0]} (paired)" for b in baselines)
         lines += [f"\nAgainst the target's {REFERENCE_LABELS[reference]}, ear mean:\n",
-                  "| sounds | estimate | SI-SDR (dB) | vs microphone (paired) | STOI (speech) | n (speech) |",
-                  "|---|---|---|---|---|---|"]
+                  f"| sounds | estimate | SI-SDR (dB) | {header} | STOI (speech) | n (speech) |",
+                  "|---|---|---|" + "---|" * len(baselines) + "---|---|"]
         for split, summary in results.items():
-            for estimate in (e for e in ESTIMATES if e in summary):
+            for estimate in (e for e in (*ESTIMATES, STAND_IN_PLACE) if e in summary):
                 s, sdr, st = summary[estimate], f"si_sdr_{reference}", f"stoi_{reference}"
-                paired = "" if estimate == "microphone" else \
-                    f"{s[sdr + '_minus_microphone']:+.2f} ± {s[sdr + '_minus_microphone_sem']:.2f}"
+                paired = " | ".join("" if estimate == b else f"{s[f'{sdr}_minus_{b}']:+.2f} ± {s[f'{sdr}_minus_{b}_sem']:.2f}"
+                                    for b in baselines)
                 stoi = f"{s[st]:.3f} ± {s[st + '_sem']:.3f} | {s[sdr + '_n']} ({s[st + '_n']})" if st in s else \
                     f"| {s[sdr + '_n']}"
                 lines.append(f"| {split} | {LABELS[estimate]} | {s[sdr]:.2f} ± {s[sdr + '_sem']:.2f} | {paired} | {stoi} |")
@@ -58,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--count", type=int, default=500, help="episodes per sound split")
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
+    parser.add_argument("--controller", metavar="NAME",
+                        help="score the last step of the episodes this controller plays (near-target), paired "
+                             "against Stand In-Place's microphone there; default: step 0")
     parser.add_argument("--out", type=Path, required=True, help="folder for results.md and results.json")
     args = parser.parse_args(argv)
     loaded = load_separator(args.checkpoint)
@@ -65,24 +75,35 @@ def main(argv: list[str] | None = None) -> int:
     library = SoundLibrary.load()
     results, started = {}, time.perf_counter()
     for split in args.sound_split or SOUND_SPLITS:
-        episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split), library)
-        results[split] = summarize(evaluate_listener(loaded, episodes[: args.count], library,
-                                                     env_config=EnvConfig(camera=False), listener=listener))
+        episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split),
+                                library)[: args.count]
+        slots = min(16, len(episodes))
+        scores = {}
+        for name in ([args.controller, "stand_in_place"] if args.controller else [None]):
+            controller = None if name is None else make_controller(name, slots)
+            played = evaluate_listener(loaded, episodes, library, n_envs=slots, controller=controller,
+                                       env_config=EnvConfig(camera=name is not None and controller_class(name).uses_camera),
+                                       listener=listener)
+            scores = scores or played
+            if name == "stand_in_place" and args.controller:
+                scores[STAND_IN_PLACE] = played["microphone"]
+        results[split] = summarize(scores)
     given = sys.argv[1:] if argv is None else argv
     command = shlex.join(["python", "scripts/eval_listener.py", *given])
     table = format_table(results)
+    step = f"last step after {args.controller}" if args.controller else "step 0"
     wall = round(time.perf_counter() - started, 1)
     print(table)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "results.md").write_text(
-        f"# What a listener gets: {args.task}, step 0, {args.count} test episodes per sound split\n\n"
+        f"# What a listener gets: {args.task}, {step}, {args.count} test episodes per sound split\n\n"
         f"`{command}` ({date.today().isoformat()}, {wall} s)\n\nSeparator: {file_label(args.checkpoint)}; "
         f"listener: {file_label(args.listener)}\n"
         f"{table}\n")
     (args.out / "results.json").write_text(json.dumps(
         {"command": command, "checkpoint": repo_relative(args.checkpoint), "listener": repo_relative(args.listener),
          "task": args.task, "scene_split": "test",
-         "step": 0, "count_per_split": args.count, "wall_seconds": wall, "results": results}, indent=1) + "\n")
+         "step": "last" if args.controller else 0, "controller": args.controller, "count_per_split": args.count, "wall_seconds": wall, "results": results}, indent=1) + "\n")
     print(f"wrote {repo_relative(args.out)}/results.md, results.json")
     return 0
 

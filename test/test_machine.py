@@ -45,3 +45,20 @@ def test_the_line_names_the_scheduler(monkeypatch, tmp_path):
     assert "autogroup scheduling off)" in machine.availability_line()
     monkeypatch.setattr(machine, "AUTOGROUP", tmp_path / "absent")
     assert not machine.autogroup_scheduling()
+
+
+def _report_peak(queue) -> None:
+    queue.put(machine.peak_rss_mib())
+
+
+def test_a_spawned_process_reports_its_own_peak_not_its_parents():
+    held = bytearray(400 * 2**20)   # the parent holds 400 MiB, touched, when it spawns
+    held[::4096] = b"\x01" * len(held[::4096])
+    assert machine.peak_rss_mib() >= 400
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    child = context.Process(target=_report_peak, args=(queue,))
+    child.start()
+    child_peak = queue.get(timeout=60)
+    child.join()
+    assert child_peak < 300, f"the child reported {child_peak:.0f} MiB, its parent's memory"

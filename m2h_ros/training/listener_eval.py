@@ -1,5 +1,6 @@
 """What a listener gets: the audio ``separator/audio`` publishes, against the raw microphone, at step 0
-of test episodes (Stand In-Place), scored against references a deployed robot can fairly be held to.
+of test episodes (Stand In-Place), or at their last step after a controller has moved the robot
+(:func:`final_step_batches`), scored against references a deployed robot can fairly be held to.
 
 References (ear means of binaural signals; the reasoning is in docs/design/separator.md, "What a
 listener gets"):
@@ -27,13 +28,15 @@ against the early image.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import scipy.signal
 import torch
 from pystoi import stoi
 
+from m2h_ros.agents.base import Controller, EpisodeStart
+from m2h_ros.agents.rollout import controller_observation
 from m2h_ros.core.audio.metrics import si_sdr
 from m2h_ros.core.audio.scoring import deployable_reference
 from m2h_ros.core.audio.stft import from_slices, masked_mixture, rebuild_mixture_phase, stft, to_slices
@@ -43,11 +46,14 @@ from m2h_ros.core.world.episodes import Episode
 from m2h_ros.errors import ConfigError
 from m2h_ros.models.checkpoint import LoadedSeparator
 from m2h_ros.models.listener import LoadedListener, listen
+from m2h_ros.models.runner import SeparatorRunner
 from m2h_ros.training.passive_eval import step_truth, step_zero_batches
 
 EARLY_S = 0.05
 REFERENCES = ("early", "as_heard")
 ESTIMATES = ("microphone", "listener", "masked_mixture", "refined", "oracle")
+# Stand In-Place's microphone at the same last step, beside another controller's estimates
+STAND_IN_PLACE = "stand_in_place_microphone"
 # STOI against the early image only: the reference a listener is held to (and half the cost)
 METRICS = ("si_sdr_early", "stoi_early", "si_sdr_as_heard")
 
@@ -67,11 +73,41 @@ def early_image(clips: np.ndarray, rirs: np.ndarray, delays: np.ndarray, *, samp
     return early_images(clips, rirs, delays, sample_rate=sample_rate).mean(axis=1)
 
 
+def final_step_batches(env: BatchEnv, episodes: Sequence[Episode], controller: Controller, runner: SeparatorRunner,
+                       *, desc: str, progress: bool) -> Iterator[tuple[np.ndarray, slice, dict, dict]]:
+    """As ``step_zero_batches``, but each batch is played by ``controller`` (given ``runner``'s
+    separator outputs each step, as ``evaluate_controller`` gives them) to its last step, and that
+    step's ``(rows, keep, obs, info)`` is yielded: what the robot hears where the controller has taken
+    it. The slots of a batch must end together, as near-target episodes of one length do."""
+    if not controller.uses_separator:
+        runner = None
+    for rows, keep, obs, info in step_zero_batches(env, episodes, desc=desc, progress=progress):
+        playing = env.current_episodes
+        for slot, episode in enumerate(playing):
+            controller.reset(slot, EpisodeStart.of(episode))
+        reset = np.ones(env.n_envs, bool)
+        while True:
+            separation = None if runner is None else runner.step(
+                obs["audio"], runner.class_indices([e.target_category for e in playing]), reset)
+            reset[:] = False
+            actions = controller.act(controller_observation(obs, separation, uses_separator=runner is not None))
+            obs, _, terminated, truncated, info = env.step(actions)
+            done = terminated | truncated
+            if done.all():
+                break
+            if done.any():
+                raise ConfigError(f"{controller.name} ended some episodes of a batch before the others: the last "
+                                  "step is scored only for episodes that end together (near-target)")
+        yield rows, keep, obs, info
+
+
 def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], library: SoundLibrary, *,
                       env_config: EnvConfig | None = None, n_envs: int = 16, listener: LoadedListener | None = None,
+                      controller: Controller | None = None,
                       progress: bool = True) -> dict[str, dict[str, np.ndarray]]:
     """Per-episode scores ``{estimate: {metric: (E,)}}`` (metrics: ``METRICS``; ``listener`` only
-    with a listener)."""
+    with a listener) at step 0, or with a ``controller`` (of ``n_envs`` slots) at the last step of
+    its episodes."""
     env_config = env_config or EnvConfig(camera=False)
     if env_config.stft != loaded.stft:
         raise ConfigError(f"the environment's STFT {env_config.stft} differs from the separator's {loaded.stft}")
@@ -80,14 +116,19 @@ def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], libr
     speech = TARGET_CATEGORIES.index("speech")
     episodes = list(episodes)
     n_envs = min(n_envs, len(episodes))
+    if controller is not None and controller.n_slots != n_envs:
+        raise ConfigError(f"{controller.name} has {controller.n_slots} slots for {n_envs} environments")
     if listener is not None and listener.classes != loaded.classes:
         raise ConfigError(f"the listener knows classes {list(listener.classes)}, the separator {list(loaded.classes)}")
     estimates = [e for e in ESTIMATES if e != "listener" or listener is not None]
     scores = {e: {m: np.full(len(episodes), np.nan) for m in METRICS} for e in estimates}
     env = BatchEnv(episodes, library, n_envs=n_envs, config=env_config, autoreset=False)
     loaded.separator.eval()
+    batches = step_zero_batches(env, episodes, desc="listener eval", progress=progress) if controller is None else \
+        final_step_batches(env, episodes, controller, SeparatorRunner(loaded, n_envs),
+                           desc=f"listener eval after {controller.name}", progress=progress)
     try:
-        for rows, keep, obs, info in step_zero_batches(env, episodes, desc="listener eval", progress=progress):
+        for rows, keep, obs, info in batches:
             mixture = obs["audio"][keep]
             truth = step_truth(info, keep)
             references = {"early": early_image(truth.target_monaural, env.target_rirs(range(len(rows))),
@@ -124,13 +165,16 @@ def evaluate_listener(loaded: LoadedSeparator, episodes: Sequence[Episode], libr
 
 def summarize(scores: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:
     """Mean, standard error and count of each metric (NaNs, i.e. non-speech STOI, left out); for every
-    estimate also its paired difference from the microphone and, where both are scored, the listener's
-    from the masked mixture."""
+    estimate also its paired difference from the microphone, from Stand In-Place's microphone where
+    ``scores`` has it (``STAND_IN_PLACE``: a last-step evaluation after another controller) and, where
+    both are scored, the listener's from the masked mixture."""
     out: dict[str, dict[str, float]] = {}
     for estimate, metrics in scores.items():
         row: dict[str, float] = {}
         for name, values in metrics.items():
             pairs = [(name, values), (f"{name}_minus_microphone", values - scores["microphone"][name])]
+            if STAND_IN_PLACE in scores:
+                pairs.append((f"{name}_minus_{STAND_IN_PLACE}", values - scores[STAND_IN_PLACE][name]))
             if estimate == "listener" and "masked_mixture" in scores:
                 pairs.append((f"{name}_minus_masked_mixture", values - scores["masked_mixture"][name]))
             for label, data in pairs:

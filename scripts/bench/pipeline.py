@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Pipeline throughput: steps per second through the five-process ROS graph vs the same models and
-episodes in-process (one slot, camera on, scores computed), measured in one run, and their ratio;
+episodes in-process (one slot, camera on, scores computed, the listener output made as separator_node
+makes it for separator/audio), measured in one run, and their ratio;
 plus the separator node's per-step latency and each node's CPU per step (the CPU time it prints at exit
 since its first message, so without its start-up) beside the in-process CPU per step. Test episodes,
 shipped separator, banks cached. The recorder runs as run_pipeline.py starts it (derived topics left
@@ -36,6 +37,7 @@ from m2h_ros.agents.registry import make_controller  # noqa: E402
 from m2h_ros.agents.rollout import evaluate_controller  # noqa: E402
 from m2h_ros.io.foxglove_watch import Watched, watch  # noqa: E402
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator  # noqa: E402
+from m2h_ros.models.listener import DEFAULT_LISTENER_CHECKPOINT, load_listener  # noqa: E402
 from m2h_ros.models.runner import SeparatorRunner  # noqa: E402
 from m2h_ros.machine import availability_line  # noqa: E402
 from m2h_ros.node_configs import PIPELINE_NODES, SimConfig  # noqa: E402
@@ -44,13 +46,24 @@ from m2h_ros.paths import REPO_DIR  # noqa: E402
 NODES = ("sim_node", *PIPELINE_NODES)
 
 
+class PlayingRunner(SeparatorRunner):
+    """A runner that also makes, each step, what separator_node publishes on separator/audio by default
+    (the listener output, both ears): the in-process side does the graph's work, not less."""
+
+    def step(self, audio, class_index, reset, **options):
+        separation = super().step(audio, class_index, reset, **options)
+        self.listen(audio, class_index, binaural=True)
+        return separation
+
+
 def in_process(config: SimConfig, controller: str) -> tuple[float, float]:
-    """Steps per second of evaluate_controller on the sim's episodes (one slot, 1 torch thread) and
-    its CPU ms per step."""
+    """Steps per second of evaluate_controller on the sim's episodes (one slot, 1 torch thread, the
+    listener output made each step as the separator node does) and its CPU ms per step."""
     torch.set_num_threads(1)
     library = sim_world.sound_library(config.sound_library)
     episodes = sim_world.sim_episodes(config, library)
-    runner = SeparatorRunner(load_separator(DEFAULT_SEPARATOR_CHECKPOINT), 1)
+    runner = PlayingRunner(load_separator(DEFAULT_SEPARATOR_CHECKPOINT), 1,
+                           listener=load_listener(DEFAULT_LISTENER_CHECKPOINT))
     started, cpu = time.perf_counter(), time.process_time()
     results = evaluate_controller(make_controller(controller, 1), runner, episodes, library,
                                   env_config=sim_world.env_config(config), progress=False)

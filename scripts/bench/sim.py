@@ -48,7 +48,7 @@ from m2h_ros.core.world.rir_bank import RirBank
 from m2h_ros.core.world.rir_spectra import StoredRirSpectra, convolution_length
 from m2h_ros.core.world.scene import load_split
 from m2h_ros.errors import CacheError
-from m2h_ros.machine import availability_line, process_cpu_seconds
+from m2h_ros.machine import availability_line, peak_rss_mib, process_cpu_seconds
 
 SPLIT = "test"
 
@@ -127,7 +127,7 @@ def throughput(n_envs: int, camera: bool, steps: int, threads: int, render_proce
     wall, cpu = time.perf_counter() - wall, time.process_time() + sum(map(process_cpu_seconds, helpers)) - cpu
     usage = resource.getrusage(resource.RUSAGE_SELF)
     env.close()
-    queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps), usage.ru_maxrss / 1024,
+    queue.put((n_envs * steps / wall, 1e3 * cpu / (n_envs * steps), peak_rss_mib(),
                env.pose_cache_hit_rate, env.rir_spectra_hit_rate, (usage.ru_minflt - before.ru_minflt) / (n_envs * steps),
                (usage.ru_inblock - before.ru_inblock) * 512 / 2**20))
 

@@ -35,3 +35,50 @@ def test_a_full_mask_gives_the_microphone_and_an_ideal_one_the_target_as_heard()
     ideal = np.minimum(np.abs(stft(target.astype(np.float32))), np.abs(stft(mixture)))
     out = masked_mixture(ideal, mixture)
     assert si_sdr(out, target.mean(axis=0)) > 15.0 > si_sdr(mixture.mean(axis=0), target.mean(axis=0))
+
+
+def test_the_last_step_is_heard_where_the_controller_took_the_robot(small_library):
+    """final_step_batches yields each episode's last step as the controller played it: Stand In-Place
+    still at its start, a random walker where its own actions, replayed in a fresh environment, end."""
+    from m2h_ros.agents.registry import make_controller
+    from m2h_ros.agents.rollout import evaluate_controller
+    from m2h_ros.core.world.env import BatchEnv, EnvConfig
+    from m2h_ros.core.world.episodes import EpisodeConfig, episodes_for
+    from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
+    from m2h_ros.models.runner import SeparatorRunner
+    from m2h_ros.training.listener_eval import final_step_batches
+
+    episodes = episodes_for(EpisodeConfig(task="near_target", scene_split="test", scene_preset="small",
+                                          min_source_distance=3.0, sound_split="unheard", count=6, max_steps=4), small_library)
+    loaded, config = load_separator(DEFAULT_SEPARATOR_CHECKPOINT), EnvConfig(camera=False)
+
+    def last_steps(name: str) -> dict[int, dict]:
+        env = BatchEnv(episodes, small_library, n_envs=4, config=config, autoreset=False)
+        try:
+            return {int(row): {k: v[i] for k, v in obs.items()}
+                    for rows, keep, obs, _ in final_step_batches(env, episodes, make_controller(name, 4),
+                                                                 SeparatorRunner(loaded, 4), desc="", progress=False)
+                    for i, row in enumerate(rows)}
+        finally:
+            env.close()
+
+    still = last_steps("stand_in_place")
+    assert sorted(still) == list(range(6))
+    for row, obs in still.items():
+        assert obs["step"] == 4
+        assert obs["node"] == episodes[row].start_node and obs["heading"] == episodes[row].start_heading
+    walked = last_steps("random")
+    played = evaluate_controller(make_controller("random", 2), SeparatorRunner(loaded, 2), episodes, small_library,
+                                 env_config=config, progress=False)
+    replay = BatchEnv(episodes, small_library, n_envs=1, config=config, autoreset=False)
+    try:
+        moved = 0
+        for row, result in enumerate(played):
+            replay.reset(episodes=[row])
+            for action in result.actions:
+                obs, *_ = replay.step(np.array([action]))
+            assert (walked[row]["node"], walked[row]["heading"]) == (obs["node"][0], obs["heading"][0])
+            moved += obs["node"][0] != episodes[row].start_node
+        assert moved, "the random walker never left its start: the comparison shows nothing"
+    finally:
+        replay.close()
