@@ -82,9 +82,11 @@ def build_common_sources(spec: str, library: SoundLibrary, per_scene: int, *, li
             bank.rirs([node], [0], [0])  # computes and stores the node's rows when absent
 
 
-def examples_for(spec: str, library: SoundLibrary, work: Path, *, only_cached: bool, poses: int) -> ListenerExamples:
+def examples_for(spec: str, library: SoundLibrary, work: Path, *, only_cached: bool, poses: int,
+                 approach: float) -> ListenerExamples:
     scenes, acoustics, seed = parse_data(spec)
-    key = hashlib.sha256(json.dumps([spec, only_cached] + ([poses] if poses > 1 else [])).encode()).hexdigest()[:12]
+    key = hashlib.sha256(json.dumps([spec, only_cached] + ([poses] if poses > 1 else [])
+                                    + ([approach] if approach else [])).encode()).hexdigest()[:12]
     path = work / f"examples_{key}.npz"
     if path.exists():
         return ListenerExamples.load(path)
@@ -96,7 +98,8 @@ def examples_for(spec: str, library: SoundLibrary, work: Path, *, only_cached: b
             episodes = banked(episodes, env_config)
         print(f"{spec} {task}: {len(episodes)} episodes", flush=True)
         if episodes:
-            parts.append(render_examples(episodes, library, env_config=env_config, poses=poses, seed=seed))
+            parts.append(render_examples(episodes, library, env_config=env_config, poses=poses, approach=approach,
+                                         seed=seed))
     if not parts:
         raise ConfigError(f"--data {spec}: no episodes (with --only-cached: none has its RIRs on disk)")
     examples = ListenerExamples.concatenate(parts)
@@ -110,6 +113,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", action="append", required=True, help="SCENES@ACOUSTICS@SEED (repeatable)")
     parser.add_argument("--only-cached", action="store_true", help="skip episodes whose RIRs are not built")
     parser.add_argument("--poses", type=int, default=1, help="poses per episode: its start, then random moves")
+    parser.add_argument("--approach", type=float, default=0.0, metavar="P",
+                        help="each move after the start is a step toward the target with probability P, else "
+                             "random: examples from where a robot that moves to hear better goes")
     parser.add_argument("--build-sources", type=int, default=0, metavar="K",
                         help="first build the RIRs of the K most used source nodes of each scene (with --only-cached)")
     parser.add_argument("--separator", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="f^B to start from")
@@ -134,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.build_sources:
             build_common_sources(spec, library, args.build_sources)
     examples = ListenerExamples.concatenate([examples_for(spec, library, args.work, only_cached=args.only_cached,
-                                                          poses=args.poses) for spec in args.data])
+                                                          poses=args.poses, approach=args.approach)
+                                             for spec in args.data])
     rendered = round(time.perf_counter() - started, 1)
     print(f"{len(examples)} examples ({rendered} s)", flush=True)
     loaded = load_separator(args.separator)

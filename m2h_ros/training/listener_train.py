@@ -26,11 +26,12 @@ from tqdm import tqdm
 from m2h_ros.core.audio.stft import StftConfig
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
-from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_RIGHT, Episode
+from m2h_ros.core.world.episodes import MOVE_FORWARD, TURN_LEFT, TURN_RIGHT, Episode
 from m2h_ros.errors import ConfigError
 from m2h_ros.models.listener import Listener
 from m2h_ros.training.listener_eval import early_images
 from m2h_ros.training.passive_eval import step_zero_batches
+from m2h_ros.training.teacher import approach_action
 
 
 @dataclass(frozen=True)
@@ -69,16 +70,20 @@ class ListenerExamples:
 
 
 def render_examples(episodes: Sequence[Episode], library: SoundLibrary, *, env_config: EnvConfig,
-                    poses: int = 1, seed: int = 0, n_envs: int = 16, progress: bool = True) -> ListenerExamples:
+                    poses: int = 1, approach: float = 0.0, seed: int = 0, n_envs: int = 16,
+                    progress: bool = True) -> ListenerExamples:
     """The mixture and the target's early image at each ear of every episode at ``poses`` poses: its
-    start, then after each of ``poses - 1`` random moves (forward, left, right; never Stop). The same
-    sources and clips heard from elsewhere: more rooms' worth of examples from the RIRs of one episode's
-    sources."""
+    start, then after each of ``poses - 1`` moves (forward, left, right; never Stop), each a step along
+    a shortest path to the target with probability ``approach``, else random. The same sources and
+    clips heard from elsewhere: more rooms' worth of examples from the RIRs of one episode's sources;
+    with ``approach``, also from where a robot that moves to hear better ends up, near the target."""
     episodes = list(episodes)
     if not episodes:
         raise ConfigError("render_examples needs at least one episode")
     if poses < 1 or any(poses > episode.max_steps for episode in episodes):
         raise ConfigError(f"poses={poses} must be in [1, the episodes' step count]")
+    if not 0.0 <= approach <= 1.0:
+        raise ConfigError(f"approach={approach!r} must be a probability in [0, 1]")
     rng = np.random.default_rng(seed)
     env = BatchEnv(episodes, library, n_envs=min(n_envs, len(episodes)), config=env_config, autoreset=False)
     mixtures, earlies, classes = [], [], []
@@ -86,7 +91,7 @@ def render_examples(episodes: Sequence[Episode], library: SoundLibrary, *, env_c
         for rows, keep, obs, info in step_zero_batches(env, episodes, desc="listener examples", progress=progress):
             for pose in range(poses):
                 if pose:
-                    obs, _, _, _, info = env.step(rng.integers(MOVE_FORWARD, TURN_RIGHT + 1, env.n_envs))
+                    obs, _, _, _, info = env.step(_moves(env, obs, approach, rng))
                 mixtures.append(obs["audio"][keep].astype(np.float16))
                 earlies.append(early_images(info["target_monaural"][keep], env.target_rirs(range(len(rows))),
                                             info["target_delay"][keep],
@@ -95,6 +100,20 @@ def render_examples(episodes: Sequence[Episode], library: SoundLibrary, *, env_c
     finally:
         env.close()
     return ListenerExamples(np.concatenate(mixtures), np.concatenate(earlies), np.concatenate(classes))
+
+
+def _moves(env: BatchEnv, obs: dict, approach: float, rng: np.random.Generator) -> np.ndarray:
+    """Each slot's next move: random (forward, left, right), or with probability ``approach`` the
+    shortest path's toward its target (a turn where the slot is on the target)."""
+    moves = rng.integers(MOVE_FORWARD, TURN_RIGHT + 1, env.n_envs)
+    if not approach:   # no further draw: random walks stay as they were
+        return moves
+    for slot in np.flatnonzero(rng.random(env.n_envs) < approach):
+        episode = env.current_episodes[slot]
+        toward = approach_action(episode.scene().grid, int(obs["node"][slot]), int(obs["heading"][slot]),
+                                 episode.target_node)
+        moves[slot] = TURN_LEFT if toward is None else toward
+    return moves
 
 
 @dataclass(frozen=True)
