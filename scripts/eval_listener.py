@@ -4,10 +4,14 @@ and an ideal-mask oracle, by SI-SDR and STOI against the target's early image an
 
     python scripts/eval_listener.py --task near_target --count 500 --out docs/results/live_output/near_target
     python scripts/eval_listener.py --controller move2hear --count 500 --out docs/results/listener/moved
+    python scripts/eval_listener.py --head free_field:0.2 --listener runs/heads/listener_free_field.pt \
+        --paired-with runs/heads/shipped_free_field/results.json --out runs/heads/free_field
 
 Step 0 (Stand In-Place) of the first --count test episodes of each sound split, or with --controller
 the last step of the episodes it plays (near-target: they end together), where every estimate is
 also paired against Stand In-Place's microphone at that step (its own run of the same episodes).
+--head hears the episodes through another head; --paired-with adds the listener's paired difference
+from another listener's run of the same episodes (its results.json keeps the per-episode scores).
 Definitions in ``m2h_ros/training/listener_eval.py``. Writes results.md and results.json into --out.
 """
 
@@ -21,11 +25,15 @@ import time
 from datetime import date
 from pathlib import Path
 
+import numpy as np
+
 from m2h_ros.agents.registry import controller_class, make_controller
 from m2h_ros.core.sounds.library import SoundLibrary
+from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import EnvConfig
+from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR
 from m2h_ros.core.world.episodes import SOUND_SPLITS, TASKS, EpisodeConfig, episodes_for
-from m2h_ros.errors import reports_errors
+from m2h_ros.errors import ConfigError, reports_errors
 from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
 from m2h_ros.models.listener import DEFAULT_LISTENER_CHECKPOINT, load_listener
 from m2h_ros.paths import file_label, repo_relative
@@ -56,6 +64,28 @@ def format_table(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+PAIRED_METRICS = ("si_sdr_early", "stoi_early")
+
+
+def paired_table(scores: dict[str, dict], other: dict, other_path: Path) -> str:
+    """This run's listener minus the listener of ``other`` (another run's results.json), episode by episode."""
+    lines = [f"\nThe listener minus {other['listener']} ({other_path}), paired on the same episodes:\n",
+             "| sounds | SI-SDR early (dB) | better on | STOI early (speech) |", "|---|---|---|---|"]
+    for split, mine in scores.items():
+        theirs = other.get("per_episode", {}).get(split)
+        if theirs is None:
+            raise ConfigError(f"--paired-with {other_path}: no per-episode scores for the {split} split")
+        cells = []
+        for metric in PAIRED_METRICS:
+            diff = mine["listener"][metric] - np.array(theirs[metric], dtype=float)
+            diff = diff[np.isfinite(diff)]
+            cells.append(f"{diff.mean():+.3f} ± {diff.std(ddof=1) / np.sqrt(len(diff)):.3f}")
+            if metric == "si_sdr_early":
+                cells.append(f"{int((diff > 0).sum())} of {len(diff)}")
+        lines.append(f"| {split} | {' | '.join(cells)} |")
+    return "\n".join(lines)
+
+
 @reports_errors("eval_listener")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -68,12 +98,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--controller", metavar="NAME",
                         help="score the last step of the episodes this controller plays (near-target), paired "
                              "against Stand In-Place's microphone there; default: step 0")
+    parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
+    parser.add_argument("--paired-with", type=Path, metavar="RESULTS_JSON",
+                        help="another listener's results.json on the same episodes, head and step: add the paired "
+                             "difference of the listeners")
     parser.add_argument("--out", type=Path, required=True, help="folder for results.md and results.json")
     args = parser.parse_args(argv)
+    setting = {"task": args.task, "count_per_split": args.count, "head": args.head, "controller": args.controller}
+    other = None
+    if args.paired_with:
+        try:
+            other = json.loads(args.paired_with.read_text())
+        except (OSError, ValueError) as error:
+            raise ConfigError(f"--paired-with {args.paired_with}: cannot read it ({error})") from error
+        for key, mine in setting.items():
+            if other.get(key, KEMAR if key == "head" else None) != mine:
+                raise ConfigError(f"--paired-with {args.paired_with}: its {key} is {other.get(key)!r}, this run's "
+                                  f"{mine!r}: pair runs of the same episodes")
+    acoustics = AcousticsConfig(head=args.head)
     loaded = load_separator(args.checkpoint)
     listener = load_listener(args.listener)
     library = SoundLibrary.load()
-    results, started = {}, time.perf_counter()
+    results, per_split, started = {}, {}, time.perf_counter()
     for split in args.sound_split or SOUND_SPLITS:
         episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split),
                                 library)[: args.count]
@@ -82,15 +128,16 @@ def main(argv: list[str] | None = None) -> int:
         for name in ([args.controller, "stand_in_place"] if args.controller else [None]):
             controller = None if name is None else make_controller(name, slots)
             played = evaluate_listener(loaded, episodes, library, n_envs=slots, controller=controller,
-                                       env_config=EnvConfig(camera=name is not None and controller_class(name).uses_camera),
+                                       env_config=EnvConfig(camera=name is not None and controller_class(name).uses_camera,
+                                                            acoustics=acoustics),
                                        listener=listener)
             scores = scores or played
             if name == "stand_in_place" and args.controller:
                 scores[STAND_IN_PLACE] = played["microphone"]
-        results[split] = summarize(scores)
+        results[split], per_split[split] = summarize(scores), scores
     given = sys.argv[1:] if argv is None else argv
     command = shlex.join(["python", "scripts/eval_listener.py", *given])
-    table = format_table(results)
+    table = format_table(results) + ("" if other is None else "\n" + paired_table(per_split, other, args.paired_with))
     step = f"last step after {args.controller}" if args.controller else "step 0"
     wall = round(time.perf_counter() - started, 1)
     print(table)
@@ -98,12 +145,15 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "results.md").write_text(
         f"# What a listener gets: {args.task}, {step}, {args.count} test episodes per sound split\n\n"
         f"`{command}` ({date.today().isoformat()}, {wall} s)\n\nSeparator: {file_label(args.checkpoint)}; "
-        f"listener: {file_label(args.listener)}\n"
+        f"listener: {file_label(args.listener)}; head: {args.head}\n"
         f"{table}\n")
     (args.out / "results.json").write_text(json.dumps(
         {"command": command, "checkpoint": repo_relative(args.checkpoint), "listener": repo_relative(args.listener),
-         "task": args.task, "scene_split": "test",
-         "step": "last" if args.controller else 0, "controller": args.controller, "count_per_split": args.count, "wall_seconds": wall, "results": results}, indent=1) + "\n")
+         "scene_split": "test", "step": "last" if args.controller else 0, **setting, "wall_seconds": wall,
+         "results": results,
+         "per_episode": {split: {metric: [None if not np.isfinite(x) else float(x) for x in scores["listener"][metric]]
+                                 for metric in PAIRED_METRICS} for split, scores in per_split.items()}},
+        indent=1) + "\n")
     print(f"wrote {repo_relative(args.out)}/results.md, results.json")
     return 0
 

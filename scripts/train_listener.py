@@ -22,6 +22,7 @@ import shlex
 import sys
 import time
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: idle threads must not spin
@@ -30,6 +31,8 @@ import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary  # noqa: E402
+from m2h_ros.core.world.acoustics import AcousticsConfig  # noqa: E402
+from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR  # noqa: E402
 from m2h_ros.core.world.env import EnvConfig  # noqa: E402
 from m2h_ros.core.world.episodes import TASKS, EpisodeConfig, episodes_for, scene_at  # noqa: E402
 from m2h_ros.core.world.rir_bank import RirBank, bank_dir  # noqa: E402
@@ -50,6 +53,11 @@ def parse_data(spec: str) -> tuple[str, str, int]:
     return parts[0], parts[1], int(parts[2])
 
 
+def acoustics_of(name: str, head: str) -> AcousticsConfig:
+    """An ACOUSTICS_PRESETS entry heard through ``head``."""
+    return replace(ACOUSTICS_PRESETS[name], head=head)
+
+
 def banked(episodes, env_config: EnvConfig) -> list:
     """The episodes whose sources' RIRs are all on disk already."""
     folders, kept = {}, []
@@ -62,12 +70,13 @@ def banked(episodes, env_config: EnvConfig) -> list:
     return kept
 
 
-def build_common_sources(spec: str, library: SoundLibrary, per_scene: int, *, lists: int = 4000) -> None:
+def build_common_sources(spec: str, library: SoundLibrary, per_scene: int, *, head: str = KEMAR,
+                         lists: int = 4000) -> None:
     """Build the RIRs of the ``per_scene`` source nodes of each scene that its episodes use most (over
     near- and far-target lists of ``lists`` episodes, seed 0): a bank's cost is per source node, and
     episodes whose sources are all common ones come cheap. Nodes already on disk are kept."""
     scenes, acoustics, _ = parse_data(spec)
-    config = ACOUSTICS_PRESETS[acoustics]
+    config = acoustics_of(acoustics, head)
     uses: Counter = Counter()
     for task in TASKS:
         for episode in episodes_for(EpisodeConfig(task=task, scene_split=scenes, sound_split="heard", count=lists),
@@ -83,14 +92,15 @@ def build_common_sources(spec: str, library: SoundLibrary, per_scene: int, *, li
 
 
 def examples_for(spec: str, library: SoundLibrary, work: Path, *, only_cached: bool, poses: int,
-                 approach: float) -> ListenerExamples:
+                 approach: float, head: str = KEMAR) -> ListenerExamples:
     scenes, acoustics, seed = parse_data(spec)
     key = hashlib.sha256(json.dumps([spec, only_cached] + ([poses] if poses > 1 else [])
-                                    + ([approach] if approach else [])).encode()).hexdigest()[:12]
+                                    + ([approach] if approach else [])
+                                    + ([head] if head != KEMAR else [])).encode()).hexdigest()[:12]
     path = work / f"examples_{key}.npz"
     if path.exists():
         return ListenerExamples.load(path)
-    env_config = EnvConfig(camera=False, acoustics=ACOUSTICS_PRESETS[acoustics])
+    env_config = EnvConfig(camera=False, acoustics=acoustics_of(acoustics, head))
     parts = []
     for task in TASKS:
         episodes = episodes_for(EpisodeConfig(task=task, scene_split=scenes, sound_split="heard", seed=seed), library)
@@ -116,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--approach", type=float, default=0.0, metavar="P",
                         help="each move after the start is a step toward the target with probability P, else "
                              "random: examples from where a robot that moves to hear better goes")
+    parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
     parser.add_argument("--build-sources", type=int, default=0, metavar="K",
                         help="first build the RIRs of the K most used source nodes of each scene (with --only-cached)")
     parser.add_argument("--separator", type=Path, default=DEFAULT_SEPARATOR_CHECKPOINT, help="f^B to start from")
@@ -138,9 +149,9 @@ def main(argv: list[str] | None = None) -> int:
     library = SoundLibrary.load()
     for spec in dict.fromkeys(f"{parse_data(spec)[0]}@{parse_data(spec)[1]}@0" for spec in args.data):
         if args.build_sources:
-            build_common_sources(spec, library, args.build_sources)
+            build_common_sources(spec, library, args.build_sources, head=args.head)
     examples = ListenerExamples.concatenate([examples_for(spec, library, args.work, only_cached=args.only_cached,
-                                                          poses=args.poses, approach=args.approach)
+                                                          poses=args.poses, approach=args.approach, head=args.head)
                                              for spec in args.data])
     rendered = round(time.perf_counter() - started, 1)
     print(f"{len(examples)} examples ({rendered} s)", flush=True)

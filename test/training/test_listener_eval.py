@@ -82,3 +82,26 @@ def test_the_last_step_is_heard_where_the_controller_took_the_robot(small_librar
         assert moved, "the random walker never left its start: the comparison shows nothing"
     finally:
         replay.close()
+
+
+def test_eval_listener_pairs_two_listeners_episode_by_episode_and_refuses_other_runs(tmp_path, capsys):
+    """--paired-with: this run's listener minus the other's on the same episodes (NaN STOI of music left
+    out), and a run of another head, task, count or step is refused before anything is computed."""
+    import json
+
+    from scripts_as_modules import load_script
+
+    script = load_script("eval_listener")
+    mine = {"heard": {"listener": {"si_sdr_early": np.array([1.0, 2.0, 3.0]),
+                                   "stoi_early": np.array([0.8, np.nan, 0.9])}}}
+    other = {"listener": "a.pt", "per_episode": {"heard": {"si_sdr_early": [0.5, 2.5, 2.0],
+                                                          "stoi_early": [0.7, None, 0.95]}}}
+    table = script.paired_table(mine, other, tmp_path / "other.json")
+    # SI-SDR differences +0.5, -0.5, +1.0: mean +0.333, better on 2 of 3; STOI +0.1, -0.05: mean +0.025
+    assert "| heard | +0.333 ± 0.441 | 2 of 3 | +0.025 ± 0.075 |" in table, table
+    saved = tmp_path / "results.json"
+    saved.write_text(json.dumps({"task": "near_target", "count_per_split": 500, "head": "free_field:0.2",
+                                 "controller": None}))
+    assert script.main(["--paired-with", str(saved), "--out", str(tmp_path / "out")]) != 0
+    assert "its head is 'free_field:0.2', this run's 'kemar'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
