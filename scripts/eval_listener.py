@@ -5,13 +5,14 @@ and an ideal-mask oracle, by SI-SDR and STOI against the target's early image an
     python scripts/eval_listener.py --task near_target --count 500 --out docs/results/live_output/near_target
     python scripts/eval_listener.py --controller move2hear --count 500 --out docs/results/listener/moved
     python scripts/eval_listener.py --head free_field:0.2 --listener runs/heads/listener_free_field.pt \
-        --paired-with runs/heads/shipped_free_field/results.json --out runs/heads/free_field
+        --paired-with runs/heads/shipped_free_field --out runs/heads/free_field
 
 Step 0 (Stand In-Place) of the first --count test episodes of each sound split, or with --controller
 the last step of the episodes it plays (near-target: they end together), where every estimate is
 also paired against Stand In-Place's microphone at that step (its own run of the same episodes).
 --head hears the episodes through another head; --paired-with adds the listener's paired difference
-from another listener's run of the same episodes (its results.json keeps the per-episode scores).
+from another listener's run of the same episodes (its --out folder, whose results.json keeps the
+per-episode scores).
 Definitions in ``m2h_ros/training/listener_eval.py``. Writes results.md and results.json into --out.
 """
 
@@ -99,16 +100,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="score the last step of the episodes this controller plays (near-target), paired "
                              "against Stand In-Place's microphone there; default: step 0")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
-    parser.add_argument("--paired-with", type=Path, metavar="RESULTS_JSON",
-                        help="another listener's results.json on the same episodes, head and step: add the paired "
-                             "difference of the listeners")
+    parser.add_argument("--paired-with", type=Path, metavar="RUN",
+                        help="another listener's run (its --out folder) on the same episodes, head and step: add "
+                             "the paired difference of the listeners")
     parser.add_argument("--out", type=Path, required=True, help="folder for results.md and results.json")
     args = parser.parse_args(argv)
     setting = {"task": args.task, "count_per_split": args.count, "head": args.head, "controller": args.controller}
     other = None
     if args.paired_with:
         try:
-            other = json.loads(args.paired_with.read_text())
+            other = json.loads((args.paired_with / "results.json").read_text())
         except (OSError, ValueError) as error:
             raise ConfigError(f"--paired-with {args.paired_with}: cannot read it ({error})") from error
         for key, mine in setting.items():

@@ -96,11 +96,12 @@ def test_eval_listener_pairs_two_listeners_episode_by_episode_and_refuses_other_
                                    "stoi_early": np.array([0.8, np.nan, 0.9])}}}
     other = {"listener": "a.pt", "per_episode": {"heard": {"si_sdr_early": [0.5, 2.5, 2.0],
                                                           "stoi_early": [0.7, None, 0.95]}}}
-    table = script.paired_table(mine, other, tmp_path / "other.json")
+    table = script.paired_table(mine, other, tmp_path / "other_run")
     # SI-SDR differences +0.5, -0.5, +1.0: mean +0.333, better on 2 of 3; STOI +0.1, -0.05: mean +0.025
     assert "| heard | +0.333 ± 0.441 | 2 of 3 | +0.025 ± 0.075 |" in table, table
-    saved = tmp_path / "results.json"
-    saved.write_text(json.dumps({"task": "near_target", "count_per_split": 500, "head": "free_field:0.2",
+    saved = tmp_path / "other_run"
+    saved.mkdir()
+    (saved / "results.json").write_text(json.dumps({"task": "near_target", "count_per_split": 500, "head": "free_field:0.2",
                                  "controller": None}))
     assert script.main(["--paired-with", str(saved), "--out", str(tmp_path / "out")]) != 0
     assert "its head is 'free_field:0.2', this run's 'kemar'" in capsys.readouterr().err
