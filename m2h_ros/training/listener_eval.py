@@ -85,10 +85,10 @@ def final_step_batches(env: BatchEnv, episodes: Sequence[Episode], controller: C
         playing = env.current_episodes
         for slot, episode in enumerate(playing):
             controller.reset(slot, EpisodeStart.of(episode))
+        classes = None if runner is None else runner.class_indices([e.target_category for e in playing])
         reset = np.ones(env.n_envs, bool)
         while True:
-            separation = None if runner is None else runner.step(
-                obs["audio"], runner.class_indices([e.target_category for e in playing]), reset)
+            separation = None if runner is None else runner.step(obs["audio"], classes, reset)
             reset[:] = False
             actions = controller.act(controller_observation(obs, separation, uses_separator=runner is not None))
             obs, _, terminated, truncated, info = env.step(actions)
