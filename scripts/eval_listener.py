@@ -30,6 +30,7 @@ import numpy as np
 
 from m2h_ros.agents.registry import controller_class, make_controller
 from m2h_ros.core.sounds.library import SoundLibrary
+from m2h_ros.core.results import mean_sem
 from m2h_ros.core.world.acoustics import AcousticsConfig
 from m2h_ros.core.world.env import EnvConfig
 from m2h_ros.core.world.hrtf import HEAD_HELP, KEMAR
@@ -80,7 +81,8 @@ def paired_table(scores: dict[str, dict], other: dict, other_path: Path) -> str:
         for metric in PAIRED_METRICS:
             diff = mine["listener"][metric] - np.array(theirs[metric], dtype=float)
             diff = diff[np.isfinite(diff)]
-            cells.append(f"{diff.mean():+.3f} ± {diff.std(ddof=1) / np.sqrt(len(diff)):.3f}")
+            mean, sem = mean_sem(diff)
+            cells.append(f"{mean:+.3f} ± {sem:.3f}")
             if metric == "si_sdr_early":
                 cells.append(f"{int((diff > 0).sum())} of {len(diff)}")
         lines.append(f"| {split} | {' | '.join(cells)} |")

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from m2h_ros.core.audio.scoring import DEPLOYABLE_REFERENCE
-from m2h_ros.core.results import METRIC_LABELS, METRICS
+from m2h_ros.core.results import METRIC_LABELS, METRICS, mean_sem
 from m2h_ros.core.sounds.library import SoundLibrary
 from m2h_ros.core.world.acoustics import BACKENDS, BACKEND_HELP, AcousticsConfig
 from m2h_ros.core.world.env import EnvConfig
@@ -69,9 +69,8 @@ def paired_difference(results: dict[str, dict], args: argparse.Namespace) -> Non
         for estimate in GAP_ESTIMATES:
             paired[estimate] = {}
             for metric in METRICS:
-                diff = np.subtract(result["per_episode"][estimate][metric], theirs[estimate][metric])
-                paired[estimate][metric] = {"mean": float(diff.mean()),
-                                            "sem": float(diff.std(ddof=1) / np.sqrt(len(diff)))}
+                mean, sem = mean_sem(np.subtract(result["per_episode"][estimate][metric], theirs[estimate][metric]))
+                paired[estimate][metric] = {"mean": mean, "sem": sem}
         result["paired"] = paired
         si_sdr = paired["separator"]["si_sdr"]
         print(f"{split:<8} paired: {LABELS['separator']} minus {other['checkpoint']}'s, SI-SDR (GT phase) "

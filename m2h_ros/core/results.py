@@ -115,15 +115,23 @@ class EpisodeTracker:
         return r
 
 
-def mean_ci(values: Sequence[float], *, level: float = 0.95) -> tuple[float, float]:
-    """Mean and half-width of its ``level`` confidence interval (Student t; 0 for one value)."""
+def mean_sem(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
+    """Mean and its standard error (sample standard deviation / sqrt(n); 0 for one value, NaN for none):
+    how the tools report a paired difference, mean ± standard error over the same episodes."""
     x = np.asarray(values, np.float64)
     if x.size == 0:
         return math.nan, math.nan
     if x.size == 1:
         return float(x[0]), 0.0
-    sem = x.std(ddof=1) / math.sqrt(x.size)
-    return float(x.mean()), float(stats.t.ppf(0.5 + level / 2, x.size - 1) * sem)
+    return float(x.mean()), float(x.std(ddof=1) / math.sqrt(x.size))
+
+
+def mean_ci(values: Sequence[float], *, level: float = 0.95) -> tuple[float, float]:
+    """Mean and half-width of its ``level`` confidence interval (Student t; 0 for one value)."""
+    mean, sem = mean_sem(values)
+    if np.size(values) < 2:
+        return mean, sem
+    return mean, float(stats.t.ppf(0.5 + level / 2, np.size(values) - 1) * sem)
 
 
 GROUP_KEYS = ("controller", "task", "sound_split")

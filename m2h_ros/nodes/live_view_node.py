@@ -2,15 +2,18 @@
 users without foxglove_bridge. Opt-in; bound to 127.0.0.1 by default.
 
 Every topic is served as a ROS 2 channel (raw CDR, schema = the message definition, ``ros2msg``), so
-Foxglove decodes each with no package of ours installed. Beside them, the topics a bag gets from the
-recorder (io/derived.py), made the same way, unless the graph publishes them itself: the TF tree
-(``/tf``, ``/tf_static``) and the audio as Foxglove ``RawAudio`` (``<audio topic>/pcm``, ``pcm-s16``),
-computed only while a client listens to one of them. A client that subscribes to a latched topic (the
-map, the static frames, the episode) gets its last message at once, as a late ROS subscriber would.
+Foxglove decodes each with no package of ours installed. The products derived from the raw topics
+(io/derived.py) are made here, each only while a client shows it: the spectrogram pictures, the audio as
+Foxglove ``RawAudio`` (``<audio topic>/pcm``, ``pcm-s16``) and the path, with the builders the nodes
+use, so byte for byte what a node would send. The nodes' own copies of them are not subscribed to:
+built here, they stay off the lockstep of the pipeline's step (the separator's step waits for its
+pictures) and cost the graph no extra delivery (see docs/reference/benchmarks.md). The TF tree (``/tf``,
+``/tf_static``) is made here too unless the graph publishes it, as a robot's own stack does. A client
+that subscribes to a latched topic (the map, the static frames, the episode) gets its last message at
+once, as a late ROS subscriber would.
 
 As foxglove_bridge does, the node subscribes in ROS only to what some client watches (and to the latched
-topics, to have their last message): a live view that nobody opens costs the graph nothing, and the
-nodes build a picture or a playable track only while a client shows it."""
+topics, to have their last message): a live view that nobody opens costs the graph nothing."""
 
 import foxglove
 from foxglove import Channel, Schema
@@ -21,7 +24,7 @@ from rclpy.subscription import Subscription
 
 from m2h_ros.errors import LiveViewError
 from m2h_ros import topics
-from m2h_ros.io.derived import TF_STATIC, Derived, absolute
+from m2h_ros.io.derived import TF, TF_STATIC, Derived, absolute
 from m2h_ros.io.msg_defs import ensure_known, typestore
 from m2h_ros.node_configs import LiveViewConfig
 from m2h_ros.ros.graph import PIPELINE_TOPICS
@@ -59,10 +62,12 @@ class LiveViewNode(Node):
         except RuntimeError as exc:  # the SDK's FoxgloveError: port taken, unknown address
             raise LiveViewError(f"cannot serve on {self.config.host}:{self.config.port}: {exc}") from exc
         self.channels: dict[str, Channel | None] = {}  # graph topic -> its channel; None: cannot be served
-        self.derived = Derived(namespace=self.get_namespace())
+        self.derived = Derived(namespace=self.get_namespace(), views=True)
         self.derived_channels = {topic: self.channel(topic, type_name)
                                  for topic, type_name in self.derived.topics().items()}
         self.derived_sources = self.derived.sources()
+        # Made here even where a node publishes them: the pipeline's own products, not a robot's frames.
+        self.made_here = frozenset(self.derived_channels) - {TF, TF_STATIC}
         namespace = self.get_namespace()
         self.state_topics = {absolute(name, namespace) for name in topics.STATE}
         self.pipeline_topics = {absolute(name, namespace) for name in PIPELINE_TOPICS}
@@ -88,6 +93,9 @@ class LiveViewNode(Node):
     def discover_topics(self) -> None:
         for offer in offered_topics(self, known=self.channels.keys() | IGNORED_TOPICS, wanted=set(self.config.topics)):
             topic, problem = offer.name, offer.problem
+            if topic in self.made_here:
+                self.channels[topic] = None  # served as made here; the node's copy is never subscribed to
+                continue
             if not problem:
                 try:
                     channel = self.channel(topic, offer.type_name)

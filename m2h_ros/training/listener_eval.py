@@ -40,6 +40,7 @@ from m2h_ros.agents.rollout import controller_observation
 from m2h_ros.core.audio.metrics import si_sdr
 from m2h_ros.core.audio.scoring import deployable_reference
 from m2h_ros.core.audio.stft import from_slices, masked_mixture, rebuild_mixture_phase, stft, to_slices
+from m2h_ros.core.results import mean_sem
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import Episode
@@ -179,8 +180,7 @@ def summarize(scores: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, f
                 pairs.append((f"{name}_minus_masked_mixture", values - scores["masked_mixture"][name]))
             for label, data in pairs:
                 data = data[np.isfinite(data)]
-                row[label] = float(np.mean(data)) if len(data) else float("nan")
-                row[f"{label}_sem"] = float(np.std(data, ddof=1) / np.sqrt(len(data))) if len(data) > 1 else 0.0
+                row[label], row[f"{label}_sem"] = mean_sem(data)
                 row[f"{label}_n"] = int(len(data))
         out[estimate] = row
     return out

@@ -40,7 +40,7 @@ from m2h_ros.core.audio.stft import StftConfig, from_slices, stft, to_slices
 from m2h_ros.core.sounds.library import TARGET_CATEGORIES, SoundLibrary
 from m2h_ros.core.world.env import BatchEnv, EnvConfig
 from m2h_ros.core.world.episodes import Episode
-from m2h_ros.core.results import METRICS
+from m2h_ros.core.results import METRICS, mean_sem
 from m2h_ros.errors import ConfigError
 from m2h_ros.models.checkpoint import LoadedSeparator
 
@@ -126,8 +126,7 @@ def summarize(scores: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, f
     for estimate, metrics in scores.items():
         out[estimate] = {"episodes": int(len(next(iter(metrics.values()))))}
         for name, values in metrics.items():
-            out[estimate][name] = float(np.mean(values))
-            out[estimate][f"{name}_sem"] = float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else 0.0
+            out[estimate][name], out[estimate][f"{name}_sem"] = mean_sem(values)
     return out
 
 

@@ -102,6 +102,7 @@ def child(mode: str, bag: Path, *others: Path) -> dict:
 
     from m2h_ros.io.msg_defs import typestore
     from m2h_ros.io.replay import EXPECTED_TYPES, BagReplay, ReplayConfig, replay_bag, replay_bags
+    from m2h_ros.machine import peak_rss_mib
 
     store = typestore()
     wanted = {ReplayConfig().topic(name) for name in EXPECTED_TYPES}
@@ -127,8 +128,8 @@ def child(mode: str, bag: Path, *others: Path) -> dict:
     seconds, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
     return {"seconds": seconds, "cpu_seconds": cpu, "steps": steps, "parts": parts, "page_faults": faults,
-            "peak_rss_mb": max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
-            / 1024}
+            # its own peak (ru_maxrss would start at the driver's, carried over exec) or its workers'
+            "peak_rss_mb": max(peak_rss_mib(), resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)}
 
 
 WORKERS = "2 bags, 2 procs"

@@ -1,7 +1,8 @@
 """live_view_node serves a pipeline run to a Foxglove WebSocket client (m2h_ros.io.foxglove_watch, a plain
 `websockets` client speaking the protocol): every topic advertised as a ROS 2 channel with its message
 definition, messages that decode with that definition alone and equal what the recorder wrote, the derived
-TF tree and pcm-s16 audio; a robot driver's own type (audio_common_msgs) with the definition from its
+TF tree, pcm-s16 audio, spectrogram pictures and path, made by the live view itself and equal to what
+m2h-derive adds to the bag; a robot driver's own type (audio_common_msgs) with the definition from its
 installed package; only what a client watches is subscribed to, so only that is built; bound to localhost;
 a taken port is named."""
 
@@ -29,7 +30,9 @@ from m2h_ros.io.derived import PCM_GAIN
 pytestmark = pytest.mark.graph
 # Messages the first client waits for on each topic (/tf_static is sent once, then on each subscription).
 CHECKED = {"/audio": 3, "/odom": 3, "/scores/step": 3, "/audio/pcm": 3, "/separator/audio/pcm": 3, "/tf": 3,
-           "/tf_static": 1, "/audio/audio_stamped": 3}
+           "/tf_static": 1, "/audio/audio_stamped": 3, "/spectrogram/mixture": 3, "/spectrogram/refined": 3,
+           "/path": 3}
+MADE_BY_THE_LIVE_VIEW = ("/audio/pcm", "/separator/audio/pcm", "/spectrogram/mixture", "/spectrogram/refined", "/path")
 LATCHED = {"/map": 1, "/tf_static": 1, "/episode": 1}  # what a client that joins mid-episode gets at once
 
 
@@ -70,8 +73,11 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
     assert run.returncode == 0, out
     assert f"live view: ws://127.0.0.1:{port}" in out
     assert listening == ["127.0.0.1"]  # the default binds to this machine only
-    # Built for the client that watches everything: every picture and track of the separator.
-    assert all(count > 0 for count in sent((tmp_path / "logs" / "separator_node.log").read_text()).values())
+    # The pictures, tracks and path are made by the live view from the raw topics: the nodes build none
+    # of them, even for a client that watches everything.
+    for node in ("separator_node", "evaluator_node", "sim_node"):
+        counts = sent((tmp_path / "logs" / f"{node}.log").read_text())
+        assert not any(count for topic, count in counts.items() if topic != "/tf"), (node, counts)
     store = typestore()
     channels, received = first.channels, first.payloads
     ros_topics = {"/audio", "/odom", "/agent_pose", "/episode", "/camera/rgb/image_raw", "/camera/depth/image_raw",
@@ -96,7 +102,8 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
     assert all(o.child_frame_id == "base_link" and np.isfinite(o.pose.pose.position.x) for o in odom)
     scores = [decode["/scores/step"](payload) for payload in received["/scores/step"]]
     assert all(np.isfinite(s.si_sdr) and s.episode_id == audio[0].episode_id for s in scores)
-    for topic in ("/audio", "/odom", "/scores/step"):  # byte for byte what the recorder wrote
+    # byte for byte what the recorder wrote, and what m2h-derive added to the bag after the run
+    for topic in ("/audio", "/odom", "/scores/step", *MADE_BY_THE_LIVE_VIEW):
         in_bag = recorded(tmp_path / "bag", topic)
         assert all(payload in in_bag for payload in received[topic]), topic
 
