@@ -4,12 +4,15 @@ and an ideal-mask oracle, by SI-SDR and STOI against the target's early image an
 
     python scripts/eval_listener.py --task near_target --count 500 --out docs/results/live_output/near_target
     python scripts/eval_listener.py --controller move2hear --count 500 --out docs/results/listener/moved
+    python scripts/eval_listener.py --controller move2hear --task far_target --count 500 \
+        --out docs/results/listener/moved_far_target
     python scripts/eval_listener.py --head free_field:0.2 --listener runs/heads/listener_free_field.pt \
         --paired-with runs/heads/shipped_free_field --out runs/heads/free_field
 
 Step 0 (Stand In-Place) of the first --count test episodes of each sound split, or with --controller
-the last step of the episodes it plays (near-target: they end together), where every estimate is
-also paired against Stand In-Place's microphone at that step (its own run of the same episodes).
+the last step of the episodes it plays, where every estimate is also paired against Stand In-Place's
+microphone at that step (its own run of the same episodes). Near-target episodes end together (step
+20) and play 16 at a time; far-target ones end when the controller stops and play one at a time.
 --head hears the episodes through another head; --paired-with adds the listener's paired difference
 from another listener's run of the same episodes (its --out folder, whose results.json keeps the
 per-episode scores).
@@ -99,8 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", choices=TASKS, default="near_target")
     parser.add_argument("--sound-split", choices=SOUND_SPLITS, action="append", help="default: both")
     parser.add_argument("--controller", metavar="NAME",
-                        help="score the last step of the episodes this controller plays (near-target), paired "
-                             "against Stand In-Place's microphone there; default: step 0")
+                        help="score the last step of the episodes this controller plays, paired against Stand "
+                             "In-Place's microphone there; default: step 0")
     parser.add_argument("--head", default=KEMAR, help=HEAD_HELP)
     parser.add_argument("--paired-with", type=Path, metavar="RUN",
                         help="another listener's run (its --out folder) on the same episodes, head and step: add "
@@ -126,9 +129,12 @@ def main(argv: list[str] | None = None) -> int:
     for split in args.sound_split or SOUND_SPLITS:
         episodes = episodes_for(EpisodeConfig(task=args.task, scene_split="test", sound_split=split),
                                 library)[: args.count]
-        slots = min(16, len(episodes))
         scores = {}
         for name in ([args.controller, "stand_in_place"] if args.controller else [None]):
+            # A batch's slots must end together: far-target episodes end where the controller stops
+            # (Stand In-Place never does: all at step 100).
+            one_at_a_time = args.task == "far_target" and name not in (None, "stand_in_place")
+            slots = 1 if one_at_a_time else min(16, len(episodes))
             controller = None if name is None else make_controller(name, slots)
             played = evaluate_listener(loaded, episodes, library, n_envs=slots, controller=controller,
                                        env_config=EnvConfig(camera=name is not None and controller_class(name).uses_camera,

@@ -79,7 +79,8 @@ def final_step_batches(env: BatchEnv, episodes: Sequence[Episode], controller: C
     """As ``step_zero_batches``, but each batch is played by ``controller`` (given ``runner``'s
     separator outputs each step, as ``evaluate_controller`` gives them) to its last step, and that
     step's ``(rows, keep, obs, info)`` is yielded: what the robot hears where the controller has taken
-    it. The slots of a batch must end together, as near-target episodes of one length do."""
+    it. The slots of a batch must end together, as near-target episodes of one length do; play
+    episodes that end when the controller stops (far-target) one per batch."""
     if not controller.uses_separator:
         runner = None
     for rows, keep, obs, info in step_zero_batches(env, episodes, desc=desc, progress=progress):
@@ -98,7 +99,8 @@ def final_step_batches(env: BatchEnv, episodes: Sequence[Episode], controller: C
                 break
             if done.any():
                 raise ConfigError(f"{controller.name} ended some episodes of a batch before the others: the last "
-                                  "step is scored only for episodes that end together (near-target)")
+                                  "step is scored only for episodes that end together (play far-target episodes "
+                                  "one per batch, n_envs=1)")
         yield rows, keep, obs, info
 
 

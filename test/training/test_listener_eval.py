@@ -3,6 +3,7 @@ masked mixture gives each ear's own mixture back under a full mask and the targe
 ideal one."""
 
 import numpy as np
+import pytest
 
 from m2h_ros.core.audio.metrics import si_sdr
 from m2h_ros.core.audio.stft import DEFAULT_STFT, masked_mixture, stft
@@ -106,3 +107,46 @@ def test_eval_listener_pairs_two_listeners_episode_by_episode_and_refuses_other_
     assert script.main(["--paired-with", str(saved), "--out", str(tmp_path / "out")]) != 0
     assert "its head is 'free_field:0.2', this run's 'kemar'" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_far_target_episodes_are_heard_where_the_controller_stopped(small_library):
+    """Far-target episodes end when the controller stops: a batch whose slots stop at different steps is
+    refused, naming the fix, and one episode per batch is heard at the step it stopped."""
+    from m2h_ros.agents.base import Controller, EpisodeStart
+    from m2h_ros.core.world.env import BatchEnv, EnvConfig
+    from m2h_ros.core.world.episodes import STOP, TURN_LEFT, EpisodeConfig, episodes_for
+    from m2h_ros.errors import ConfigError
+    from m2h_ros.models.checkpoint import DEFAULT_SEPARATOR_CHECKPOINT, load_separator
+    from m2h_ros.models.runner import SeparatorRunner
+    from m2h_ros.training.listener_eval import final_step_batches
+
+    def stop_step(start) -> int:
+        return 1 + start.seed % 3
+
+    class StopsEarly(Controller):
+        name, summary, uses_separator = "stops_early", "turns, then stops at a step set by the episode", False
+
+        def _act(self, obs):
+            return np.array([STOP if step >= stop_step(start) else TURN_LEFT
+                             for step, start in zip(obs.step, self.starts)], np.int64)
+
+    episodes = episodes_for(EpisodeConfig(task="far_target", scene_split="test", scene_preset="small",
+                                          min_source_distance=3.0, sound_split="unheard", count=6, max_steps=8),
+                            small_library)
+    stops = [stop_step(EpisodeStart.of(e)) for e in episodes]
+    assert len(set(stops)) > 1, "the episodes must stop at different steps for this test to show anything"
+    loaded, config = load_separator(DEFAULT_SEPARATOR_CHECKPOINT), EnvConfig(camera=False)
+
+    def last_steps(n_envs: int) -> dict[int, int]:
+        env = BatchEnv(episodes, small_library, n_envs=n_envs, config=config, autoreset=False)
+        try:
+            return {int(row): int(obs["step"][i])
+                    for rows, keep, obs, _ in final_step_batches(env, episodes, StopsEarly(n_envs),
+                                                                 SeparatorRunner(loaded, n_envs), desc="", progress=False)
+                    for i, row in enumerate(rows)}
+        finally:
+            env.close()
+
+    with pytest.raises(ConfigError, match="one per batch"):
+        last_steps(6)
+    assert last_steps(1) == {row: stop + 1 for row, stop in enumerate(stops)}
