@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from m2h_ros.core.plotting import agg_pyplot, save_line_plot
 from m2h_ros.core.world.episodes import STOP
@@ -128,6 +127,8 @@ def mean_sem(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
 
 def mean_ci(values: Sequence[float], *, level: float = 0.95) -> tuple[float, float]:
     """Mean and half-width of its ``level`` confidence interval (Student t; 0 for one value)."""
+    from scipy import stats  # half a second to import: not at the start of every node that reports
+
     mean, sem = mean_sem(values)
     if np.size(values) < 2:
         return mean, sem

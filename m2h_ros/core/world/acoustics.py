@@ -41,12 +41,14 @@ import json
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from importlib.metadata import version
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pyroomacoustics as pra
-from pyroomacoustics import libroom
-from pyroomacoustics.doa import fibonacci_spherical_sampling
 from scipy import fft as sfft
-from scipy.signal import butter, sosfiltfilt
+
+if TYPE_CHECKING:
+    from pyroomacoustics import libroom
 
 from m2h_ros.core.world.hrtf import KEMAR, Hrtf, head_identity, load_head, parse_head
 from m2h_ros.core.world.scene import FURNISHINGS
@@ -166,7 +168,7 @@ class AcousticsConfig:
         hrtf = "MIT_KEMAR_normal_pinna" if identity is None else identity
         backend, rays, sh_order = config.pop("backend"), config.pop("rlr_rays"), config.pop("rlr_sh_order")
         del config["rlr_threads"]  # how fast, not what
-        key = {"config": config, "version": VERSION, "pyroomacoustics": pra.__version__,
+        key = {"config": config, "version": VERSION, "pyroomacoustics": version("pyroomacoustics"),
                "hrtf": f"{hrtf}, diffuse-field equalised"}
         if backend != "project":
             from m2h_ros.core.world import rlr_backend  # the opt-in package: a clear error where it is missing
@@ -184,6 +186,8 @@ class AcousticsConfig:
 
 def _material_absorption(name: str) -> np.ndarray:
     """Energy absorption of a pyroomacoustics database material at BAND_CENTRES."""
+    import pyroomacoustics as pra  # imported where banks are built: most processes only read them
+
     try:
         material = pra.Material(name)
     except (KeyError, ValueError, TypeError) as err:
@@ -198,6 +202,8 @@ def _material_absorption(name: str) -> np.ndarray:
 def _polygon(corners: np.ndarray, outward: np.ndarray, absorption: np.ndarray,
              scattering: float) -> libroom.Wall:
     """A libroom wall from (K, 3) planar corners whose normal points along ``outward`` (away from the room)."""
+    from pyroomacoustics import libroom
+
     if float(np.dot(_newell_normal(corners), outward)) < 0:
         corners = corners[::-1]  # libroom's normal follows the right-hand rule of the corner order
     return libroom.Wall(corners.T.astype(np.float32), absorption.astype(np.float32),
@@ -346,7 +352,9 @@ def _air_amplitude(distance: np.ndarray, config: AcousticsConfig) -> np.ndarray:
     """(..., B) amplitude factor of air absorption over ``distance`` metres."""
     if not config.air_absorption:
         return np.ones(np.shape(distance) + (BAND_CENTRES.size,))
-    air = pra.parameters.Physics().get_air_absorption()
+    from pyroomacoustics.parameters import Physics
+
+    air = Physics().get_air_absorption()
     alpha = np.interp(np.log2(BAND_CENTRES), np.log2(air["center_freqs"]), air["coeffs"])
     return np.exp(-0.5 * alpha * np.asarray(distance)[..., None])
 
@@ -427,6 +435,9 @@ def simulate_source(scene: Any, source_node: int, config: AcousticsConfig, *,
     if not 0 <= source_node < len(points):
         raise ConfigError(f"source node {source_node} is not a node of scene {scene.scene_id}")
     source = points[source_node]
+    from pyroomacoustics import libroom
+    from pyroomacoustics.doa import fibonacci_spherical_sampling
+
     surfaces = scene_surfaces(scene, config) if surfaces is None else surfaces
     engine = libroom.Room(surfaces, list(range(len(surfaces))), [], config.speed_of_sound,
                           config.ism_max_order, 1e-6, config.rir_length, config.receiver_radius,
@@ -550,6 +561,8 @@ def room_rt60(scene: Any, room_index: int, *, formula: str = "eyring", air: bool
 
 def octave_band(signal: np.ndarray, centre: float, sample_rate: int) -> np.ndarray:
     """``signal`` filtered (zero phase) to the octave band around ``centre`` Hz."""
+    from scipy.signal import butter, sosfiltfilt
+
     sos = butter(4, [centre / np.sqrt(2), min(centre * np.sqrt(2), 0.49 * sample_rate)],
                  btype="bandpass", fs=sample_rate, output="sos")
     return sosfiltfilt(sos, np.asarray(signal, np.float64), axis=-1)

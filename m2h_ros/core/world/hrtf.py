@@ -35,7 +35,6 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-from scipy.signal import fftconvolve, resample_poly
 
 from m2h_ros.core.sounds.sources import sources_dir
 from m2h_ros.errors import CacheError, ConfigError, HeadError
@@ -139,6 +138,8 @@ def _prepared(hrirs: np.ndarray, directions: np.ndarray, weights: np.ndarray, ce
     """An Hrtf from raw (D, 2, L) HRIRs at ``file_rate`` whose head-centre arrival is sample ``centre``:
     onsets trimmed, resampled, diffuse-field equalised (unless ``equalise`` is False) and normalised to
     unit diffuse-field energy per ear."""
+    from scipy.signal import fftconvolve, resample_poly  # here: most processes never load a head
+
     trim = max(0, int(_first_onset(hrirs).min()) - _ONSET_MARGIN * file_rate // sample_rate)
     hrirs = hrirs[..., trim:]
     centre -= trim

@@ -46,6 +46,18 @@ def test_config_documents_paper_window() -> None:
     np.testing.assert_allclose(cfg.window(), torch.hann_window(1023, dtype=torch.float64).numpy(), atol=1e-15)
 
 
+@pytest.mark.parametrize("win_length", [1, 2, 255, 256, 400, 1023])
+def test_window_is_scipys_periodic_hann_bit_for_bit(win_length: int) -> None:
+    # Computed without scipy.signal (half a second of every process's start); the values must not move.
+    import scipy.signal
+
+    config = StftConfig(n_fft=1023, win_length=win_length, hop_length=min(win_length, 256))
+    window = config.window()
+    left = (1023 - win_length) // 2
+    np.testing.assert_array_equal(window[left: left + win_length], scipy.signal.get_window("hann", win_length))
+    assert not window[:left].any() and not window[left + win_length:].any()
+
+
 @pytest.mark.parametrize("field,value",
                          [("n_fft", 0), ("hop_length", 2000), ("pad_mode", "wrap"), ("n_freq_slices", 7)])
 def test_config_rejects_bad_values(field: str, value: object) -> None:
