@@ -79,8 +79,10 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
         code = 2
     except Exception:
         # Ctrl-C / SIGTERM invalidates the context at once: a callback running then (e.g. a graph
-        # query) fails with RCLError. That is the shutdown that was asked for, not a crash.
-        if rclpy.ok():
+        # query) fails with RCLError; and the KeyboardInterrupt of a stop raised inside a binding's
+        # call (taking a message) comes out as pybind11's RuntimeError. Either is the shutdown that was
+        # asked for, not a crash.
+        if rclpy.ok() and not stop_signals.signalled():
             raise
     finally:
         stop_signals.closing()  # the run is over, however it ended: nothing may cut the closing short

@@ -21,13 +21,15 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 PARENT_ENV = "M2H_STOP_WITH_PARENT"
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 _stopping = False
+_signalled = False  # a stop signal came (not merely closing)
 _deferring = False  # inside deferred(): a stop is noted, not raised
 _pending = False    # a stop came while deferring
 
 
 def stop_once(signum, frame) -> None:
     """The handler of SIGINT and SIGTERM: KeyboardInterrupt the first time, nothing afterwards."""
-    global _stopping, _pending
+    global _stopping, _pending, _signalled
+    _signalled = True
     if _deferring:
         _pending = True
     elif not _stopping:
@@ -55,6 +57,13 @@ def install() -> None:
     inherited ignored (a background job of a non-interactive shell): a node must still stop on it."""
     for signum in STOP_SIGNALS:
         signal.signal(signum, stop_once)
+
+
+def signalled() -> bool:
+    """Whether a stop signal has come. A KeyboardInterrupt raised while a binding converts a message can
+    surface as another exception (pybind11's RuntimeError "Unable to convert call argument"): with this
+    true, that exception is the stop, not a crash."""
+    return _signalled
 
 
 def closing() -> None:
