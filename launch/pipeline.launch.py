@@ -32,6 +32,7 @@ ARGUMENTS = (
     Argument("rate_hz", "sim_node", "rate_hz"),
     Argument("step_timeout_s", "sim_node", "step_timeout_s"),
     Argument("startup_timeout_s", "sim_node", "startup_timeout_s"),
+    Argument("start_delay_s", "sim_node", "start_delay_s"),
     Argument("head", "sim_node", "head"),
     Argument("world", "sim_node", "world"),
     Argument("controller", "controller_node", "policy"),

@@ -52,6 +52,10 @@ class SimConfig(Config):
                                     min=0.1, max=3600.0)
     startup_timeout_s: float = setting(60.0, "seconds to wait for expect_nodes to subscribe",
                                        min=0.1, max=3600.0)
+    start_delay_s: float = setting(0.5, "seconds from every expect_nodes subscribed to step 0, for the "
+                                   "endpoints to match; DDS discovery can take about 2 s to match a viewer "
+                                   "that was already running (Foxglove, rviz, a topic echo): raise it to "
+                                   "watch from step 0", min=0.0, max=3600.0)
     expect_nodes: tuple[str, ...] = setting(("separator_node", "controller_node"),
                                             "nodes that must be subscribed before step 0 (of: "
                                             + ", ".join(PIPELINE_NODES) + "); with evaluator_node "

@@ -32,7 +32,7 @@ STOOD_IN = ("launch", "launch.actions", "launch.conditions", "launch.event_handl
             "launch_ros.parameter_descriptions")
 # What a user of the pipeline sets per run: each must be a launch argument.
 USER_SETTINGS = {"task", "sound_split", "first_episode", "episodes", "mode", "rate_hz", "step_timeout_s",
-                 "startup_timeout_s", "head", "world", "controller", "separator_checkpoint", "output", "overwrite"}
+                 "startup_timeout_s", "start_delay_s", "head", "world", "controller", "separator_checkpoint", "output", "overwrite"}
 
 
 class Entity:

@@ -42,7 +42,6 @@ from m2h_ros.ros.qos import LATCHED, LATEST, STEP, TF, publisher_events, subscri
 from m2h_ros.ros.spin import RunFinished, run_node
 
 TICK_S = 0.05  # how often the node checks start-up and timeouts (answers are handled as they come)
-SETTLE_S = 0.5  # after every consumer is seen, let the endpoints match before step 0
 DELIVERY_TIMEOUT_S = 5.0  # at the end, how long to wait for every reader to acknowledge every sample
 
 
@@ -149,7 +148,7 @@ class SimNode(Node):
             return
         if self.ready_since is None:
             self.ready_since = now
-        elif now - self.ready_since >= SETTLE_S:
+        elif now - self.ready_since >= self.config.start_delay_s:
             self.get_logger().info(f"consumers ready ({', '.join(self.config.expect_nodes)}): starting")
             self.next_episode()
             if self.config.mode == "free_running":
