@@ -7,8 +7,8 @@ since its first message, so without its start-up) beside the in-process CPU per 
 shipped separator, banks cached. The recorder runs as run_pipeline.py starts it (derived topics left
 to m2h-derive, which runs after the sim's last step and so outside the timed span); nobody else
 watches, or with --live-view the live view node runs and a Foxglove client (m2h_ros.io.foxglove_watch, in
-this process) watches every topic through it, so the live view makes every picture, track and marker; with
---live-view nobody the live view runs and no client connects.
+this process, its CPU per step printed) watches every topic through it, so the live view makes every picture,
+track and marker; with --live-view nobody the live view runs and no client connects.
 
     python scripts/bench/pipeline.py [--episodes 5] [--repeats 2] [--controller random]
                                      [--live-view [everything|nobody]]
@@ -121,7 +121,9 @@ def main(argv=None) -> int:
     in_process(config, args.controller)  # warm: RIR banks of these episodes' sources, camera views
     for repeat in range(args.repeats):
         load = os.getloadavg()[0]
+        client_cpu = time.process_time()  # the client is this process's only work while the graph runs
         graph, latency, steps, cpu, seen = through_graph(args.episodes, args.controller, nodes, client=client)
+        client_cpu = (time.process_time() - client_cpu) / steps * 1e3
         local, local_cpu = in_process(config, args.controller)
         per_step = {node: cpu[node] / steps * 1e3 for node in nodes}
         print(f"run {repeat + 1}{setting}: graph {graph:.1f} "
@@ -133,7 +135,8 @@ def main(argv=None) -> int:
               f"graph total {sum(per_step.values()):.1f} vs in-process {local_cpu:.1f}", flush=True)
         if seen is not None:
             print(f"  the client received {sum(seen.counts.values())} messages on {len(seen.counts)} of "
-                  f"{len(seen.channels)} topics, {seen.received_bytes / 1e6:.0f} MB", flush=True)
+                  f"{len(seen.channels)} topics, {seen.received_bytes / 1e6:.0f} MB, on {client_cpu:.1f} CPU ms "
+                  "per step of the same cores", flush=True)
     return 0
 
 
