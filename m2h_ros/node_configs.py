@@ -167,6 +167,9 @@ class RecorderConfig(Config):
                                  "(run_pipeline.py runs it after the run) add the same topics from the raw ones")
     discovery_period_s: float = setting(0.5, "how often new topics are looked for", min=0.01,
                                         max=60.0)
+    live_view: bool = setting(False, "also serve the live view from this process (the node live_view_node, "
+                              "with its own parameters): every recorded topic reaches it from the "
+                              "recorder's subscription instead of a second delivery from each publisher")
     flush_period_s: float = setting(0.25, "the open MCAP chunk is written to disk at least this often, "
                                     "so a killed recorder loses at most about this much", min=0.01, max=60.0)
 

@@ -75,8 +75,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=None, help="run directory (default runs/<date-time>)")
     parser.add_argument("--no-record", action="store_true", help="run without the recorder")
     parser.add_argument("--live-view", type=int, nargs="?", const=LIVE_VIEW_PORT, default=None, metavar="PORT",
-                        help=f"also serve the run to Foxglove on ws://127.0.0.1:PORT (default {LIVE_VIEW_PORT}); "
-                             "other live_view_node settings with --set")
+                        help=f"also serve the run to Foxglove on ws://127.0.0.1:PORT (default {LIVE_VIEW_PORT}), "
+                             "from the recorder's process unless --no-record; other live_view_node settings "
+                             "with --set")
     recording = parser.add_argument_group("what the bag keeps (default: everything; in robot mode all but the raw "
                                           "camera streams, zstd-compressed)")
     recording.add_argument("--record-topics", nargs="+", default=None, metavar="TOPIC",
@@ -149,6 +150,8 @@ def overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
             params["recorder_node"][name] = value
     if args.live_view is not None:
         params["live_view_node"] = {"port": args.live_view}
+        if record:  # served from the recorder's process: it takes every recorded topic from the recorder
+            params["recorder_node"]["live_view"] = True
     for item in args.set:
         node, sep, assignment = item.partition(".")
         name, eq, value = assignment.partition("=")
@@ -257,14 +260,19 @@ def main(argv=None) -> int:
     started = time.monotonic()
     interrupted = False
     try:
+        in_recorder = {"live_view_node"} if params["recorder_node"].get("live_view") else set()
         for node in nodes:
             if ((node == "recorder_node" and args.no_record) or (node == "live_view_node" and args.live_view is None)
+                    or node in in_recorder
                     or (node in MICROPHONES.values() and node != MICROPHONES[args.microphones])):
                 continue
             logs[node] = args.out / "logs" / f"{node}.log"
-            command = [*launcher(), node, "--ros-args", "--params-file", str(ROOT / "params" / f"{node}.yaml")]
-            for name in params[node]:  # typed as the config holds them: 5 for a float is 5.0, which ROS needs
-                command += ["-p", f"{name}:={ros_value(getattr(configs[node], name))}"]
+            command = [*launcher(), node, "--ros-args"]
+            for hosted in (node, *(in_recorder if node == "recorder_node" else ())):
+                command += ["--params-file", str(ROOT / "params" / f"{hosted}.yaml")]
+                for name in params[hosted]:  # typed as the config holds them: 5 for a float is 5.0, which ROS needs
+                    # NODE:NAME: a process that runs two nodes gives each only its own parameters
+                    command += ["-p", f"{hosted}:{name}:={ros_value(getattr(configs[hosted], name))}"]
             for topic, to in remaps.get(node, ()):
                 command += ["-r", f"{topic}:={to}"]
             procs[node] = subprocess.Popen(command, stdout=logs[node].open("w"), stderr=subprocess.STDOUT,

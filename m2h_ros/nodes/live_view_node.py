@@ -13,7 +13,9 @@ that subscribes to a latched topic (the map, the static frames, the episode) get
 once, as a late ROS subscriber would.
 
 As foxglove_bridge does, the node subscribes in ROS only to what some client watches (and to the latched
-topics, to have their last message): a live view that nobody opens costs the graph nothing."""
+topics, to have their last message): a live view that nobody opens costs the graph nothing. Run in the
+recorder's process (recorder_node's live_view), it takes every topic the recorder records from the
+recorder's subscription rather than its own."""
 
 import foxglove
 from foxglove import Channel, Schema
@@ -74,6 +76,7 @@ class LiveViewNode(Node):
         self.latched: set[str] = {TF_STATIC}
         self.offers: dict[str, OfferedTopic] = {}  # served graph topic -> its offer (type), subscribed while watched
         self.subscribed: dict[str, Subscription] = {}
+        self.recorder = None  # a RecorderNode of this process whose recorded topics come through take_recorded
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
         self.create_timer(DEMAND_PERIOD_S, self.follow_demand)
         self.discover_topics()
@@ -133,10 +136,23 @@ class LiveViewNode(Node):
         return any(channel.has_sinks() for derived, channel in self.derived_channels.items()
                    if self.derived_sources.get(derived) == topic)
 
+    def take_recorded(self, recorder) -> None:
+        """From now on, every topic ``recorder`` records comes from its subscription, not one of ours."""
+        self.recorder = recorder
+        recorder.listeners.append(self.from_recorder)
+        self.follow_demand()
+
+    def from_recorder(self, topic: str, type_name: str, data: bytes) -> None:
+        if topic in self.offers and self.watched(topic):
+            self.forward(topic, type_name, data)
+
     def follow_demand(self) -> None:
-        """Subscribes in ROS to the served topics that are watched now, and unsubscribes from the others."""
+        """Subscribes in ROS to the served topics that are watched now (unless the recorder takes them),
+        and unsubscribes from the others."""
+        recorded = self.recorder.recorded if self.recorder is not None else {}
         for topic, offer in self.offers.items():
-            if self.watched(topic) == (topic in self.subscribed):
+            needed = self.watched(topic) and not recorded.get(topic)
+            if needed == (topic in self.subscribed):
                 continue
             if topic in self.subscribed:
                 self.destroy_subscription(self.subscribed.pop(topic))

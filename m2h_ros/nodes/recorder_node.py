@@ -5,7 +5,13 @@ is left out unless keep_derived is true: then no node builds it during the run, 
 adds the same topics to the bag afterwards. With keep_derived the recorder subscribes to them, and
 derives TF and the tracks itself where the graph lacks their packages.
 
+With live_view, the process also runs live_view_node, fed from the recorder's own subscriptions: a
+client watching every topic then costs the graph no second delivery of each message (see
+docs/reference/benchmarks.md).
+
 Stopping it with Ctrl-C or SIGTERM closes the bag properly, so a recording is never lost."""
+
+from collections.abc import Callable
 
 from datetime import datetime
 from pathlib import Path
@@ -36,6 +42,13 @@ class RecorderNode(Node):
     def __init__(self):
         super().__init__("recorder_node")
         self.config: RecorderConfig = declare_config(self, RecorderConfig)
+        # First: a port already taken stops the start before a bag is created.
+        self.live_view = None
+        if self.config.live_view:
+            from m2h_ros.nodes.live_view_node import LiveViewNode  # foxglove's server: only for those who ask
+
+            self.live_view = LiveViewNode()
+        self.companions = (self.live_view,) if self.live_view else ()  # spun by run_node in this process
         output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
         if Path(output).exists() and not self.config.overwrite:
             # In what each startup takes: BagWriter's own message names its Python argument.
@@ -58,7 +71,10 @@ class RecorderNode(Node):
         self.left_out = frozenset() if cfg.keep_derived else frozenset(derived_topics(self.get_namespace()))
         self.discovery = self.create_timer(self.config.discovery_period_s, self.discover_topics)
         self.flusher = self.create_timer(self.config.flush_period_s, self.writer.flush)  # idle stretches too
+        self.listeners: list[Callable[[str, str, bytes], None]] = []  # (topic, type, cdr) of every message taken
         self.discover_topics()
+        if self.live_view is not None:
+            self.live_view.take_recorded(self)
         self.get_logger().info(f"recording to {self.writer.path}")
 
     def discover_topics(self) -> None:
@@ -92,6 +108,8 @@ class RecorderNode(Node):
             self.get_logger().info(f"recording {topic} [{offer.type_name}]")
 
     def write(self, topic: str, data: bytes) -> None:
+        for listener in self.listeners:
+            listener(topic, self.recorded[topic], data)
         now = self.get_clock().now().nanoseconds
         if self.held is not None:
             if topic in LOG_TOPICS and len(self.held) < HELD_LOG_LINES:
@@ -124,6 +142,8 @@ class RecorderNode(Node):
             self.counts[topic] += 1
 
     def destroy_node(self) -> None:
+        if self.live_view is not None:
+            self.live_view.destroy_node()
         if self.held:  # a run that never got going: its log lines are all it has
             self.write_held(self.get_clock().now().nanoseconds)
         self.writer.close()

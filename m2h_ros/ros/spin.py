@@ -61,6 +61,8 @@ def run_node(node_type: type[Node], args: list[str] | None = None, *, publish_on
             node = node_type()
         if not rclpy.ok():  # a Ctrl-C while the node was being built shut the context down: nothing to spin
             raise KeyboardInterrupt
+        for companion in getattr(node, "companions", ()):  # nodes it runs in this process (destroys them too)
+            executor.add_node(companion)
         profile_dir = os.environ.get("M2H_PROFILE_DIR")
         if profile_dir:  # cProfile of the spin (not the start-up), one <node>.prof per process
             profiler = cProfile.Profile(time.process_time)  # CPU, not wall time: idle waits cost nothing

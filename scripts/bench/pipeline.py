@@ -6,7 +6,8 @@ plus the separator node's per-step latency and each node's CPU per step (the CPU
 since its first message, so without its start-up) beside the in-process CPU per step. Test episodes,
 shipped separator, banks cached. The recorder runs as run_pipeline.py starts it (derived topics left
 to m2h-derive, which runs after the sim's last step and so outside the timed span); nobody else
-watches, or with --live-view the live view node runs and a Foxglove client (m2h_ros.io.foxglove_watch, in
+watches, or with --live-view the live view node runs (in the recorder's process, as run_pipeline.py starts
+it) and a Foxglove client (m2h_ros.io.foxglove_watch, in
 this process, its CPU per step printed) watches every topic through it, so the live view makes every picture,
 track and marker; with --live-view nobody the live view runs and no client connects.
 
@@ -93,7 +94,8 @@ def through_graph(episodes: int, controller: str, nodes: tuple[str, ...], *, cli
         result = subprocess.CompletedProcess(run.args, run.returncode, stdout, stderr)
         seen = watched.result() if watched is not None else None
         logs = Path(tmp) / "logs"
-        texts = {node: (logs / f"{node}.log").read_text() for node in nodes}
+        # The live view runs in the recorder's process (its CPU is in the recorder's) unless there is no recorder.
+        texts = {node: (logs / f"{node}.log").read_text() for node in nodes if (logs / f"{node}.log").exists()}
     if result.returncode:
         raise SystemExit(f"pipeline run failed:\n{result.stdout}\n{result.stderr}\n{texts['sim_node']}")
     done = re.search(r"(\d+) steps in [\d.]+ s \(([\d.]+) steps/s\)", texts["sim_node"])
@@ -125,12 +127,14 @@ def main(argv=None) -> int:
         graph, latency, steps, cpu, seen = through_graph(args.episodes, args.controller, nodes, client=client)
         client_cpu = (time.process_time() - client_cpu) / steps * 1e3
         local, local_cpu = in_process(config, args.controller)
-        per_step = {node: cpu[node] / steps * 1e3 for node in nodes}
+        per_step = {node: cpu[node] / steps * 1e3 for node in cpu}
         print(f"run {repeat + 1}{setting}: graph {graph:.1f} "
               f"steps/s, in-process {local:.1f} steps/s, graph/in-process time ratio {local / graph:.2f} (target <= "
               f"{target}; graph target >= 30 steps/s); separator node {latency}; load average {load:.2f} -> "
               f"{os.getloadavg()[0]:.2f}", flush=True)
-        per_node = ", ".join(f"{node.removesuffix('_node')} {ms:.1f}" for node, ms in per_step.items())
+        hosted = " + live view" if "live_view_node" in nodes and "live_view_node" not in cpu else ""
+        per_node = ", ".join(f"{node.removesuffix('_node')}{hosted if node == 'recorder_node' else ''} {ms:.1f}"
+                             for node, ms in per_step.items())
         print(f"  CPU ms per step: {per_node}; "
               f"graph total {sum(per_step.values()):.1f} vs in-process {local_cpu:.1f}", flush=True)
         if seen is not None:

@@ -1,4 +1,4 @@
-"""live_view_node serves a pipeline run to a Foxglove WebSocket client (m2h_ros.io.foxglove_watch, a plain
+"""live_view_node serves a pipeline run (from the recorder's process) to a Foxglove WebSocket client (m2h_ros.io.foxglove_watch, a plain
 `websockets` client speaking the protocol): every topic advertised as a ROS 2 channel with its message
 definition, messages that decode with that definition alone and equal what the recorder wrote, the derived
 TF tree, pcm-s16 audio, spectrogram pictures and path, made by the live view itself and equal to what
@@ -13,10 +13,15 @@ import socket
 import struct
 import subprocess
 import sys
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 import pytest
+import rclpy
 from mcap_ros2._dynamic import generate_dynamic
+from rclpy.context import Context
+from rclpy.node import Node
 from pipeline_helpers import ROOT, ROS2RUN, node_env, tiny_sets
 from test_derived_topics import sent
 from test_executables import wait_for_line
@@ -67,12 +72,22 @@ def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir,
     try:
         first = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
         listening = listening_addresses(port)  # while the run is surely still on (it ends some 20 s in)
+        with ThreadPoolExecutor(1) as pool:  # who reads /audio while a client watches it
+            watching = pool.submit(asyncio.run, watch(port, wanted={"/audio": 6}, timeout=60.0, only={"/audio"}))
+            nodes, audio_readers = graph_of("/audio", while_running=watching)
+            assert watching.result().counts["/audio"] >= 6
         late = asyncio.run(watch(port, wanted=LATCHED, timeout=5.0)).payloads  # the map went out steps ago
     finally:
         out, _ = run.communicate(timeout=240)
     assert run.returncode == 0, out
     assert f"live view: ws://127.0.0.1:{port}" in out
     assert listening == ["127.0.0.1"]  # the default binds to this machine only
+    # Served from the recorder's process: a watched topic reaches the live view through the recorder's
+    # subscription, with no second delivery from its publisher.
+    assert {"live_view_node", "recorder_node"} <= nodes, nodes
+    assert "recorder_node" in audio_readers and "live_view_node" not in audio_readers, audio_readers
+    assert not (tmp_path / "logs" / "live_view_node.log").exists()
+    assert "serving the graph to Foxglove" in (tmp_path / "logs" / "recorder_node.log").read_text()
     # The pictures, tracks and path are made by the live view from the raw topics: the nodes build none
     # of them, even for a client that watches everything.
     for node in ("separator_node", "evaluator_node", "sim_node"):
@@ -147,6 +162,25 @@ def test_the_nodes_build_only_what_a_client_watches(small_library, small_data_di
     for node in ("separator_node", "evaluator_node", "sim_node"):
         counts = sent((tmp_path / "logs" / f"{node}.log").read_text())
         assert counts and not any(counts.values()), (node, counts)
+
+
+def graph_of(topic: str, *, while_running: Future) -> tuple[set[str], set[str]]:
+    """The graph's node names and the names of the nodes subscribed to ``topic``, every one seen while
+    ``while_running`` runs."""
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("graph_probe", context=context)
+    nodes: set[str] = set()
+    readers: set[str] = set()
+    try:
+        while not while_running.done():
+            nodes |= set(node.get_node_names())
+            readers |= {info.node_name for info in node.get_subscriptions_info_by_topic(topic)}
+            time.sleep(0.1)
+        return nodes, readers
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
 
 
 def listening_addresses(port: int) -> list[str]:
