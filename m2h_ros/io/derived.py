@@ -14,6 +14,7 @@ the node would have sent. Where the graph publishes a topic itself, a recording 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable
 
 import numpy as np
@@ -63,16 +64,17 @@ def derived_topics(namespace: str = "") -> dict[str, str]:
     return Derived(namespace=namespace, views=True).topics()
 
 
-def _default(msgtype: str):
-    """A message of ``msgtype`` with every field zero, empty or default-built (rosbags' classes take
-    every field)."""
+@functools.cache
+def _default_fields(msgtype: str) -> dict[str, object]:
+    """Every field of ``msgtype`` zero, empty or default-built (rosbags' classes take every field), built
+    once: the values are shared between messages, so none may be changed in place."""
     store = typestore()
     _, fields = store.fielddefs[msgtype]
 
     def value(desc):
         kind, detail = desc
         if kind == Nodetype.NAME:
-            return _default(detail)
+            return store.types[detail](**_default_fields(detail))
         if kind == Nodetype.BASE:
             return "" if detail[0] == "string" else False if detail[0] == "bool" else 0
         element = detail[0]
@@ -80,7 +82,12 @@ def _default(msgtype: str):
             return np.zeros(detail[1] if kind == Nodetype.ARRAY else 0, np.dtype(_NUMPY[element[1][0]]))
         return [value(element) for _ in range(detail[1] if kind == Nodetype.ARRAY else 0)]
 
-    return store.types[msgtype](**{name: value(desc) for name, desc in fields})
+    return {name: value(desc) for name, desc in fields}
+
+
+def _message(msgtype: str, **fields):
+    """A ``msgtype`` with ``fields`` set and every other field at its default."""
+    return typestore().types[msgtype](**{**_default_fields(msgtype), **fields})
 
 
 _NUMPY = {"bool": "bool", "byte": "uint8", "char": "uint8", "int8": "int8", "uint8": "uint8", "int16": "int16",
@@ -115,16 +122,15 @@ def path_markers_cdr(positions: np.ndarray, *, height: float, stamp_ns: int) -> 
     t = typestore().types
     points = [t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(height))
               for x, y in np.asarray(positions, float).reshape(-1, 2)]
-    markers = []
-    for marker_id, (kind, scale) in enumerate(((LINE_STRIP, (PATH_WIDTH, 0.0, 0.0)), (SPHERE_LIST, (PATH_DOT,) * 3))):
-        marker = _default("visualization_msgs/msg/Marker")
-        marker.header = t["std_msgs/msg/Header"](stamp=_stamp(stamp_ns), frame_id=MAP)
-        marker.ns, marker.id, marker.type, marker.action = "path", marker_id, kind, ADD
-        marker.pose.orientation.w = 1.0
-        marker.scale = t["geometry_msgs/msg/Vector3"](*(float(v) for v in scale))
-        marker.color = t["std_msgs/msg/ColorRGBA"](*(float(v) for v in PATH_COLOUR))
-        marker.points = points
-        markers.append(marker)
+    header = t["std_msgs/msg/Header"](stamp=_stamp(stamp_ns), frame_id=MAP)
+    pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+                                       orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+    colour = t["std_msgs/msg/ColorRGBA"](*(float(v) for v in PATH_COLOUR))
+    markers = [_message("visualization_msgs/msg/Marker", header=header, ns="path", id=marker_id, type=kind,
+                        action=ADD, pose=pose, scale=t["geometry_msgs/msg/Vector3"](*(float(v) for v in scale)),
+                        color=colour, points=points)
+               for marker_id, (kind, scale) in enumerate(((LINE_STRIP, (PATH_WIDTH, 0.0, 0.0)),
+                                                          (SPHERE_LIST, (PATH_DOT,) * 3)))]
     return _cdr(t[MARKERS](markers=markers), MARKERS)
 
 

@@ -1,12 +1,13 @@
 """What a bag gets beside the recorded topics: the TF tree from the odometry and the agent's pose, and
-pcm-s16 RawAudio of the mixture, the separated estimate and the target."""
+pcm-s16 RawAudio of the mixture, the separated estimate and the target; the path as markers."""
 
 import numpy as np
 import pytest
+from mcap_ros2._dynamic import generate_dynamic
 from rotations import rotation_matrix
 
 from m2h_ros import topics
-from m2h_ros.io.derived import PCM_GAIN, Derived
+from m2h_ros.io.derived import PCM_GAIN, Derived, path_markers_cdr
 from m2h_ros.io.mcap_stream import BagStream
 from m2h_ros.io.msg_defs import typestore
 from m2h_ros.io.synthetic import SyntheticRun, write_synthetic_run
@@ -75,3 +76,23 @@ def test_a_recorded_run_gets_its_tf_tree_and_audio_tracks(tmp_path):
             heard = np.frombuffer(audio.data.tobytes(), "<i2").reshape(-1, channels).T / (32767 * PCM_GAIN)
             samples = np.asarray(getattr(original, field)).reshape(channels, -1)
             np.testing.assert_allclose(heard, np.clip(samples, -1 / PCM_GAIN, 1 / PCM_GAIN), atol=1 / (32767 * PCM_GAIN))
+
+
+def test_the_path_decodes_with_an_independent_reader_as_a_line_and_dots_through_every_position():
+    store = typestore()
+    decode = generate_dynamic("visualization_msgs/msg/MarkerArray",
+                              store.generate_msgdef("visualization_msgs/msg/MarkerArray", ros_version=2)[0])
+    decode = decode["visualization_msgs/msg/MarkerArray"]
+    for positions in (np.array([[1.0, 2.0]]), np.array([[0.0, 0.5], [1.5, -2.0], [3.25, 4.0]])):
+        stamp = 12 * 10**9 + 345
+        markers = decode(path_markers_cdr(positions, height=1.25, stamp_ns=stamp)).markers
+        assert [(m.ns, m.id, m.type, m.action) for m in markers] == [("path", 0, 4, 0), ("path", 1, 7, 0)]
+        for marker in markers:
+            assert marker.header.frame_id == "map"
+            assert (marker.header.stamp.sec, marker.header.stamp.nanosec) == (12, 345)
+            assert [(p.x, p.y, p.z) for p in marker.points] == [(x, y, 1.25) for x, y in positions]
+            q = marker.pose.orientation
+            assert (q.x, q.y, q.z, q.w) == (0.0, 0.0, 0.0, 1.0)
+            assert marker.color.a == pytest.approx(1.0) and marker.color.b == pytest.approx(0.9)
+            assert marker.text == "" and list(marker.colors) == []
+        assert markers[0].scale.x == pytest.approx(0.05) and markers[1].scale.z == pytest.approx(0.15)
