@@ -196,15 +196,23 @@ def listening_addresses(port: int) -> list[str]:
     return found
 
 
-def test_a_taken_port_stops_the_node_naming_it(processes):
+@pytest.mark.parametrize("host", ["live_view_node", "recorder_node"])
+def test_a_taken_port_stops_the_node_naming_it(processes, tmp_path, host):
+    """Alone, or in the recorder's process, where it stops the recorder before a bag is created."""
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        proc = processes.start([ROS2RUN, "m2h_ros", "live_view_node", "--ros-args", "-p", f"port:={port}"])
+        if host == "live_view_node":
+            args = ["-p", f"port:={port}"]
+        else:
+            args = ["-p", "recorder_node:live_view:=true", "-p", f"recorder_node:output:={tmp_path / 'bag'}",
+                    "-p", f"live_view_node:port:={port}"]
+        proc = processes.start([ROS2RUN, "m2h_ros", host, "--ros-args", *args])
         _, err = proc.communicate(timeout=60.0)
     assert proc.returncode == 2, err
     assert f"LiveViewError: cannot serve on 127.0.0.1:{port}" in err and "Address already in use" in err
+    assert not (tmp_path / "bag").exists()
 
 
 def test_a_definition_that_differs_from_the_publishers_is_named(processes, tmp_path):
