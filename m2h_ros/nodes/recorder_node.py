@@ -12,7 +12,6 @@ docs/reference/benchmarks.md).
 Stopping it with Ctrl-C or SIGTERM closes the bag properly, so a recording is never lost."""
 
 from collections.abc import Callable
-
 from datetime import datetime
 from pathlib import Path
 
