@@ -47,7 +47,6 @@ class RecorderNode(Node):
             from m2h_ros.nodes.live_view_node import LiveViewNode  # foxglove's server: only for those who ask
 
             self.live_view = LiveViewNode()
-        self.companions = (self.live_view,) if self.live_view else ()  # spun by run_node in this process
         output = self.config.output or f"runs/{datetime.now():%Y%m%d-%H%M%S}"
         if Path(output).exists() and not self.config.overwrite:
             # In what each startup takes: BagWriter's own message names its Python argument.
@@ -75,6 +74,11 @@ class RecorderNode(Node):
         if self.live_view is not None:
             self.live_view.take_recorded(self)
         self.get_logger().info(f"recording to {self.writer.path}")
+
+    @property
+    def companions(self) -> tuple[Node, ...]:
+        """The nodes run_node spins in this process beside this one (destroyed with it)."""
+        return (self.live_view,) if self.live_view is not None else ()
 
     def discover_topics(self) -> None:
         for offer in offered_topics(self, known=self.recorded.keys() | IGNORED_TOPICS):

@@ -16,8 +16,8 @@ import sys
 import time
 
 from m2h_ros.machine import availability_line, load_average
+from m2h_ros.node_configs import NODE_CONFIGS
 
-NODES = ("sim_node", "separator_node", "controller_node", "evaluator_node", "recorder_node", "live_view_node")
 REFERENCE = "rclpy.node"
 
 
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=8, help="starts of each module")
     args = parser.parse_args(argv)
     print(availability_line(), flush=True)
-    modules = (REFERENCE, *(f"m2h_ros.nodes.{node}" for node in NODES))
+    modules = (REFERENCE, *(f"m2h_ros.nodes.{node}" for node in NODE_CONFIGS))
     for module in modules:  # warm: the page cache holds every library afterwards
         start_cost(module)
     costs: dict[str, list[tuple[float, float]]] = {module: [] for module in modules}

@@ -6,10 +6,10 @@ plus the separator node's per-step latency and each node's CPU per step (the CPU
 since its first message, so without its start-up) beside the in-process CPU per step. Test episodes,
 shipped separator, banks cached. The recorder runs as run_pipeline.py starts it (derived topics left
 to m2h-derive, which runs after the sim's last step and so outside the timed span); nobody else
-watches, or with --live-view the live view node runs (in the recorder's process, as run_pipeline.py starts
-it) and a Foxglove client (m2h_ros.io.foxglove_watch, in
-this process, its CPU per step printed) watches every topic through it, so the live view makes every picture,
-track and marker; with --live-view nobody the live view runs and no client connects.
+watches, or with --live-view the live view node runs (in the recorder's process, as run_pipeline.py
+starts it) and a Foxglove client (m2h_ros.io.foxglove_watch, in this process, its CPU per step printed)
+watches every topic through it, so the live view makes every picture, track and marker; with --live-view
+nobody the live view runs and no client connects.
 
     python scripts/bench/pipeline.py [--episodes 5] [--repeats 2] [--controller random]
                                      [--live-view [everything|nobody]]

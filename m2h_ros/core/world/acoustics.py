@@ -39,20 +39,18 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass
-from typing import Any
-
 from importlib.metadata import version
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import fft as sfft
 
-if TYPE_CHECKING:
-    from pyroomacoustics import libroom
-
 from m2h_ros.core.world.hrtf import KEMAR, Hrtf, head_identity, load_head, parse_head
 from m2h_ros.core.world.scene import FURNISHINGS
 from m2h_ros.errors import ConfigError
+
+if TYPE_CHECKING:  # imported where banks are built (most processes only read them)
+    from pyroomacoustics import libroom
 
 #: Bump whenever a change in this module changes the numbers in a bank (invalidates caches).
 VERSION = 2
