@@ -14,7 +14,9 @@ import struct
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -68,17 +70,20 @@ def watched_run(processes, data_dir, out, *, episodes: int) -> tuple[int, subpro
 
 def test_a_foxglove_client_watches_a_pipeline_run(small_library, small_data_dir, processes, tmp_path):
     # Free-running at 2 steps/s: two episodes last about 20 s, time for two clients to subscribe.
-    port, run = watched_run(processes, small_data_dir, tmp_path, episodes=2)
-    try:
-        first = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
-        listening = listening_addresses(port)  # while the run is surely still on (it ends some 20 s in)
-        with ThreadPoolExecutor(1) as pool:  # who reads /audio while a client watches it
-            watching = pool.submit(asyncio.run, watch(port, wanted={"/audio": 6}, timeout=60.0, only={"/audio"}))
-            nodes, audio_readers = graph_of("/audio", while_running=watching)
-            assert watching.result().counts["/audio"] >= 6
-        late = asyncio.run(watch(port, wanted=LATCHED, timeout=5.0)).payloads  # the map went out steps ago
-    finally:
-        out, _ = run.communicate(timeout=240)
+    # The probe joins the graph before the run: DDS discovery of a process can take seconds, longer than the
+    # window in which the probe looks.
+    with graph_probe() as probe:
+        port, run = watched_run(processes, small_data_dir, tmp_path, episodes=2)
+        try:
+            first = asyncio.run(watch(port, wanted=CHECKED, timeout=180.0))
+            listening = listening_addresses(port)  # while the run is surely still on (it ends some 20 s in)
+            with ThreadPoolExecutor(1) as pool:  # who reads /audio while a client watches it
+                watching = pool.submit(asyncio.run, watch(port, wanted={"/audio": 6}, timeout=60.0, only={"/audio"}))
+                nodes, audio_readers = graph_of(probe, "/audio", while_running=watching)
+                assert watching.result().counts["/audio"] >= 6
+            late = asyncio.run(watch(port, wanted=LATCHED, timeout=5.0)).payloads  # the map went out steps ago
+        finally:
+            out, _ = run.communicate(timeout=240)
     assert run.returncode == 0, out
     assert f"live view: ws://127.0.0.1:{port}" in out
     assert listening == ["127.0.0.1"]  # the default binds to this machine only
@@ -164,23 +169,30 @@ def test_the_nodes_build_only_what_a_client_watches(small_library, small_data_di
         assert counts and not any(counts.values()), (node, counts)
 
 
-def graph_of(topic: str, *, while_running: Future) -> tuple[set[str], set[str]]:
-    """The graph's node names and the names of the nodes subscribed to ``topic``, every one seen while
-    ``while_running`` runs."""
+@contextmanager
+def graph_probe() -> Iterator[Node]:
+    """A node of its own context that only looks at the graph (the rmw keeps its graph cache up to date
+    without spinning)."""
     context = Context()
     rclpy.init(context=context)
     node = Node("graph_probe", context=context)
-    nodes: set[str] = set()
-    readers: set[str] = set()
     try:
-        while not while_running.done():
-            nodes |= set(node.get_node_names())
-            readers |= {info.node_name for info in node.get_subscriptions_info_by_topic(topic)}
-            time.sleep(0.1)
-        return nodes, readers
+        yield node
     finally:
         node.destroy_node()
         rclpy.shutdown(context=context)
+
+
+def graph_of(probe: Node, topic: str, *, while_running: Future) -> tuple[set[str], set[str]]:
+    """The graph's node names and the names of the nodes subscribed to ``topic``, every one seen while
+    ``while_running`` runs."""
+    nodes: set[str] = set()
+    readers: set[str] = set()
+    while not while_running.done():
+        nodes |= set(probe.get_node_names())
+        readers |= {info.node_name for info in probe.get_subscriptions_info_by_topic(topic)}
+        time.sleep(0.1)
+    return nodes, readers
 
 
 def listening_addresses(port: int) -> list[str]:
