@@ -10,8 +10,9 @@ episode with :class:`~m2h_ros.core.results.EpisodeTracker`, exactly as the live 
 holds at most a few open episodes' unscored steps, whatever the bag's length.
 
 On several cores (``ReplayConfig.score_processes``) this process still reads every chunk once and
-groups the steps, while child processes score the batches; their scores are taken in reading order,
-so the results are the same, bit for bit, as one process's. Should a batch fail to score there (an
+groups the steps, and child processes score the batches with it (it scores a batch itself whenever they
+all have one waiting); the scores are taken in reading order, so the results are the same, bit for bit,
+as one process's. Should a batch fail to score there (an
 estimate with NaN), the bag is replayed again in one process, so that what is reported about it, and
 in which order, is what one process reports.
 
@@ -67,8 +68,9 @@ class ReplayConfig:
     namespace: str = "/"  # the graph's namespace: relative topic names resolve under it
     atol: float = 1e-3  # tolerance of replayed vs live figures
     batch_steps: int = 16  # complete steps scored together (speed); memory stays bounded by it
-    # Processes scoring the batches while this one reads on (1: this one scores them): the same numbers;
-    # scoring is over half of a step's CPU time, reading the rest.
+    # Processes scoring the batches: this one, between its reads, and score_processes - 1 child processes
+    # (the same numbers). Scoring is over half of a step's CPU time, reading the rest, so N processes keep
+    # N cores busy without a third process taking turns with two on two cores.
     score_processes: int = 1
     # An unfinished episode is given up once this many newer ones have begun. In a pipeline bag the
     # separator and the evaluator run behind the simulator by up to the sim's max_evaluator_lag (<= 100
@@ -224,9 +226,7 @@ def _score_shared(name: str, shapes: Sequence[tuple[int, ...]], config: StftConf
     return score_magnitude(magnitude, mixture, StepTruth(monaural, binaural), config=config)
 
 
-def _scoring_pool(processes: int) -> ProcessPoolExecutor | None:
-    if processes == 1:
-        return None
+def _scoring_pool(processes: int) -> ProcessPoolExecutor:
     # Forked where the platform can: a child starts in milliseconds, not an import's seconds.
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
     return ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context(method))
@@ -285,7 +285,8 @@ class _Replayer:
         self.seen: dict[str, int] = {}
         self.steps_scored = 0
         self.order: dict[str, int] = {}  # episode id -> how many episodes began before it
-        self.pool = _scoring_pool(config.score_processes)
+        self.children = config.score_processes - 1
+        self.pool = _scoring_pool(self.children) if self.children else None
         # Batches being scored and episode ends, applied in reading order; at most this many in flight.
         self.pending: deque[_Batch | _End] = deque()
         self.in_flight = 4 * config.score_processes
@@ -469,7 +470,7 @@ class _Replayer:
                 [np.asarray(t.target_monaural, np.float32) for t in truths],
                 [np.asarray(t.target_binaural, np.float32).reshape(2, -1) for t in truths])
         config = StftConfig(sample_rate=parts[0].stft.sample_rate, clip_samples=parts[0].audio.shape[-1])
-        if self.pool is None:
+        if self.pool is None or self._children_busy():
             magnitude, mixture, monaural, binaural = (np.stack(r) for r in rows)
             return _Batch(episode, group, score_magnitude(magnitude, mixture, StepTruth(monaural, binaural),
                                                           config=config))
@@ -478,6 +479,12 @@ class _Replayer:
         for view, r in zip(_views(block, shapes), rows, strict=True):
             np.stack(r, out=view)
         return _Batch(episode, group, self.pool.submit(_score_shared, block.name, shapes, config), block)
+
+    def _children_busy(self) -> bool:
+        """Whether every scoring process has a batch running and one waiting (then this one scores)."""
+        waiting = sum(1 for item in self.pending if isinstance(item, _Batch) and isinstance(item.scores, Future)
+                      and not item.scores.done())
+        return waiting >= 2 * self.children
 
     def _block(self, size: int) -> SharedMemory:
         """A free shared memory block of at least ``size`` bytes (a new one if none is)."""

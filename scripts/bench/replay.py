@@ -13,8 +13,8 @@ cases interleaved REPEATS times; the figures are the median and the min-max spre
 * bare read + decode: the same, deserialising the topics replay needs (rosbags' typestore);
 * replay: :func:`m2h_ros.io.replay.replay_bag` (stream, decode, group, score, compare with live);
 * replay 2 procs (``--processes``): the same with ``ReplayConfig(score_processes=2)`` (``m2h-eval`` on two
-  cores): this process reads, two child processes score; two cores, where the bare read uses one (CPU
-  includes the children's);
+  cores): this process reads and scores, a child process scores with it; two cores, where the bare read
+  uses one (CPU includes the child's);
 * 2 bags, 2 procs (``--workers``): the bag and a copy of it replayed at once by
   :func:`m2h_ros.io.replay.replay_bags` with ``workers=2`` (``m2h-eval --workers 2``), two child processes;
   its steps/s count both bags' steps (CPU includes the children's).
@@ -163,7 +163,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--bag", type=Path, default=None, help="an existing bag instead of synthetic ones")
     parser.add_argument("--processes", action="store_true",
-                        help="also replay with ReplayConfig(score_processes=2) (two child processes score)")
+                        help="also replay with ReplayConfig(score_processes=2) (this process and a child score)")
     parser.add_argument("--workers", action="store_true",
                         help="also replay two copies of the bag at once in two processes (m2h-eval --workers 2)")
     parser.add_argument("--cold", action="store_true",

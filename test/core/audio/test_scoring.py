@@ -39,3 +39,25 @@ def test_the_target_as_heard_is_perfect_and_a_distractor_costs():
     mixture = (heard + rng.standard_normal(heard.shape).astype(np.float32)) / 2
     mixed = score_magnitude(np.abs(stft(mixture.mean(axis=1))), mixture, truth)
     assert (mixed.si_sdr_mixture_phase < alone.si_sdr_mixture_phase - 20).all()
+
+
+@pytest.mark.parametrize("repeated", [True, False])
+def test_a_batch_scores_each_row_as_alone(repeated):
+    """An episode's steps share one target clip, whose STFT a batch computes once: every score is the
+    same, bit for bit, as that row scored alone (what the live evaluator does), and a batch of
+    different clips too."""
+    rng = np.random.default_rng(2)
+    truth = _truth(rng)
+    steps = 5
+    dry = np.repeat(truth.target_monaural[:1], steps, axis=0) if repeated else \
+        rng.standard_normal((steps, 16000)).astype(np.float32)
+    heard = np.repeat(truth.target_binaural[:1], steps, axis=0) * rng.uniform(0.5, 2.0, (steps, 1, 1)).astype(np.float32)
+    mixture = (heard + rng.standard_normal(heard.shape).astype(np.float32)) / 2
+    estimate = np.abs(stft(mixture.mean(axis=1))) * rng.uniform(0.5, 1.5, (steps, 1, 1)).astype(np.float32)
+    batch = score_magnitude(estimate, mixture, StepTruth(dry, heard))
+    for row in range(steps):
+        alone = score_magnitude(estimate[row], mixture[row], StepTruth(dry[row], heard[row]))
+        for name in ("si_sdr", "si_sdr_mixture_phase", "stft_distance"):
+            assert getattr(batch, name)[row] == getattr(alone, name), (name, row)
+    with pytest.raises(AudioError, match="NaN"):  # a NaN in a repeated clip is still named
+        score_magnitude(estimate, mixture, StepTruth(np.where(np.arange(16000) == 7, np.nan, dry), heard))
