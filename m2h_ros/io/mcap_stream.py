@@ -83,6 +83,12 @@ def definition_hash(name: str, text: str) -> str:
     return store.hash_rihs01(name)
 
 
+@lru_cache(maxsize=256)
+def _own_definition(name: str) -> str:
+    """The ros2msg text this checkout writes for ``name`` (what our recorder puts in a bag)."""
+    return m2h_typestore().generate_msgdef(name, ros_version=2)[0]
+
+
 def _string(buf: memoryview, offset: int) -> tuple[str, int]:
     (size,) = struct.unpack_from("<I", buf, offset)
     end = offset + 4 + size
@@ -404,13 +410,15 @@ class BagStream:
             return ChannelInfo(topic, "", encoding, "", False)
         # The schema text is what the data was written with; a listed hash only stands in for it.
         type_hash = ""
-        if schema.encoding == "ros2msg":
+        ours = m2h_typestore()
+        if schema.encoding == "ros2msg" and schema.name in ours.types and schema.text == _own_definition(schema.name):
+            type_hash = ours.hash_rihs01(schema.name)  # the text this checkout writes: no need to parse it
+        elif schema.encoding == "ros2msg":
             try:
                 type_hash = definition_hash(schema.name, schema.text)
             except Exception as exc:  # rosbags' parser raises its own types for bad .msg text
                 self._problem(f"{state.path}: topic {topic}: cannot parse the definition of {schema.name} ({exc})")
         type_hash = type_hash or self._listed_hashes.get(topic) or metadata.get("topic_type_hash", "")
-        ours = m2h_typestore()
         known = encoding == "cdr" and schema.name in ours.types and type_hash == ours.hash_rihs01(schema.name)
         if schema.name in ours.types and not known:
             self._problem(f"{state.path}: topic {topic}: {schema.name} in the bag is not this checkout's "

@@ -67,7 +67,9 @@ EPISODE_FIELDS = ("si_sdr", "si_sdr_mixture_phase", "stft_distance", "mean_si_sd
 class ReplayConfig:
     namespace: str = "/"  # the graph's namespace: relative topic names resolve under it
     atol: float = 1e-3  # tolerance of replayed vs live figures
-    batch_steps: int = 16  # complete steps scored together (speed); memory stays bounded by it
+    # Complete steps scored together (speed; memory stays bounded by it). Beyond 8 a batch is no faster,
+    # and smaller ones share the work between processes more evenly.
+    batch_steps: int = 8
     # Processes scoring the batches: this one, between its reads, and score_processes - 1 child processes
     # (the same numbers). Scoring is over half of a step's CPU time, reading the rest, so N processes keep
     # N cores busy without a third process taking turns with two on two cores.
@@ -481,10 +483,11 @@ class _Replayer:
         return _Batch(episode, group, self.pool.submit(_score_shared, block.name, shapes, config), block)
 
     def _children_busy(self) -> bool:
-        """Whether every scoring process has a batch running and one waiting (then this one scores)."""
+        """Whether every scoring process has a batch running and two waiting: then this one scores the
+        next batch itself (with fewer, the children ran short of work while this one scored)."""
         waiting = sum(1 for item in self.pending if isinstance(item, _Batch) and isinstance(item.scores, Future)
                       and not item.scores.done())
-        return waiting >= 2 * self.children
+        return waiting >= 3 * self.children
 
     def _block(self, size: int) -> SharedMemory:
         """A free shared memory block of at least ``size`` bytes (a new one if none is)."""

@@ -152,13 +152,15 @@ def _episode(run: SyntheticRun, index: int, put, clock, live_score, t) -> Episod
                            target_class="speech", shortest_path=goal)
     tracker = EpisodeTracker(result, xy)
     action = HELD  # the pose of step 0 follows no action
+    # One dry clip per episode, as the simulator plays it; heard from a new place (delay, gains) each step.
+    envelope = 0.5 + 0.5 * np.sin(np.linspace(0, 8 * np.pi, n)) ** 2
+    target = (rng.standard_normal(n) * envelope).astype(np.float32)
     for step in range(last + 1):
         clock[0] += STEP_NS
         stamp = clock[0]
-        envelope = 0.5 + 0.5 * np.sin(np.linspace(0, 8 * np.pi, n) + step) ** 2
-        target = (rng.standard_normal(n) * envelope).astype(np.float32)
         delay = int(rng.integers(20, 60))
-        target_binaural = np.stack([np.roll(target, delay) * 0.8, np.roll(target, delay + 3) * 0.6])
+        gains = rng.uniform(0.4, 1.0, 2)
+        target_binaural = np.stack([np.roll(target, delay) * gains[0], np.roll(target, delay + 3) * gains[1]])
         target_binaural[:, :delay] = 0
         distractor = rng.standard_normal((2, n)).astype(np.float32) * 0.7
         mixture = ((target_binaural + distractor) / 2).astype(np.float32)
