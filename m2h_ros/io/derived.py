@@ -107,7 +107,10 @@ def _cdr(message, msgtype: str) -> bytes:
 def spectrogram_image_cdr(magnitude: np.ndarray, *, stamp_ns: int) -> bytes:
     """A linear STFT magnitude, (F, T) or (channels, F, T), as the 32FC1 picture in dB an image panel
     shows (core.audio.display.spectrogram_image), in the head frame: a serialized sensor_msgs/Image."""
-    picture = spectrogram_image(magnitude)
+    return _picture_cdr(spectrogram_image(magnitude), stamp_ns=stamp_ns)
+
+
+def _picture_cdr(picture: np.ndarray, *, stamp_ns: int) -> bytes:
     height, width = picture.shape
     t = typestore().types
     image = t[IMAGE](header=t["std_msgs/msg/Header"](stamp=_stamp(stamp_ns), frame_id=HEAD), height=height,
@@ -153,6 +156,9 @@ class Derived:
             (topics.GROUND_TRUTH, topics.TARGET_IMAGE))} if views else {}
         self.path_topic = absolute(topics.PATH, namespace) if views else None
         self.path: tuple[str, list[tuple[float, float]]] = ("", [])  # episode id, its positions so far
+        # source topic -> its last samples, their pcm-s16 bytes and picture: the target's dry clip is the
+        # same at every step of an episode, and is converted once
+        self._converted: dict[str, tuple[np.ndarray, bytes, np.ndarray | None]] = {}
 
     def topics(self) -> dict[str, str]:
         """Every topic this may write, with its type."""
@@ -195,16 +201,21 @@ class Derived:
             if channels < 1 or samples.size % channels:
                 return out
             planar = samples.reshape(channels, -1)
-            audio = self._types[RAW_AUDIO](timestamp=msg.header.stamp,
-                                           data=np.frombuffer(pcm_int16(planar, gain=PCM_GAIN), np.uint8),
+            last = self._converted.get(topic)
+            if last is not None and last[0].shape == planar.shape and np.array_equal(last[0], planar):
+                _, pcm, image = last
+            else:
+                pcm, image = pcm_int16(planar, gain=PCM_GAIN), None
+                if picture is not None and np.all(np.isfinite(planar)):
+                    config = StftConfig(sample_rate=int(msg.sample_rate), clip_samples=planar.shape[-1])
+                    image = spectrogram_image(np.abs(stft(planar[0] if field != "samples" else planar, config=config)))
+                self._converted[topic] = (planar.copy(), pcm, image)  # the message's buffer may be reused
+            audio = self._types[RAW_AUDIO](timestamp=msg.header.stamp, data=np.frombuffer(pcm, np.uint8),
                                            format="pcm-s16", sample_rate=int(msg.sample_rate),
                                            number_of_channels=channels)
             out.append((pcm_topic(topic), RAW_AUDIO, _cdr(audio, RAW_AUDIO)))
-            if picture is not None and np.all(np.isfinite(planar)):
-                config = StftConfig(sample_rate=int(msg.sample_rate), clip_samples=planar.shape[-1])
-                out.append((picture, IMAGE, spectrogram_image_cdr(
-                    np.abs(stft(planar[0] if field != "samples" else planar, config=config)),
-                    stamp_ns=_nanoseconds(msg.header.stamp))))
+            if picture is not None and image is not None:
+                out.append((picture, IMAGE, _picture_cdr(image, stamp_ns=_nanoseconds(msg.header.stamp))))
         elif msgtype == "m2h_msgs/msg/Spectrogram" and picture is not None:
             msg = self.store.deserialize_cdr(data, msgtype)
             values = np.asarray(msg.data, np.float32)

@@ -96,3 +96,30 @@ def test_the_path_decodes_with_an_independent_reader_as_a_line_and_dots_through_
             assert marker.color.a == pytest.approx(1.0) and marker.color.b == pytest.approx(0.9)
             assert marker.text == "" and list(marker.colors) == []
         assert markers[0].scale.x == pytest.approx(0.05) and markers[1].scale.z == pytest.approx(0.15)
+
+
+def test_a_clip_repeated_from_step_to_step_gives_what_a_fresh_conversion_gives(tmp_path):
+    """The target's dry clip is the same at every step of an episode and is converted once: each step's
+    picture and track still equal a fresh conversion of its own message, the next episode's clip too."""
+    from m2h_ros.core.audio.pcm import pcm_int16
+    from m2h_ros.core.audio.stft import stft
+    from m2h_ros.io.derived import spectrogram_image_cdr
+
+    write_synthetic_run(tmp_path / "bag", SyntheticRun(episodes=2, max_steps=3, camera=False))
+    store, derived = typestore(), Derived(views=True)
+    pictures, tracks, clips = [], [], []
+    for raw in BagStream(tmp_path / "bag").messages():
+        made = {topic: data for topic, _, data in derived.feed(raw.topic, raw.msgtype, raw.data)}
+        if raw.topic != topics.GROUND_TRUTH:
+            continue
+        truth = store.deserialize_cdr(raw.data, raw.msgtype)
+        stamp = truth.header.stamp.sec * 10**9 + truth.header.stamp.nanosec
+        clip = np.asarray(truth.target_monaural, np.float32)
+        clips.append(clip)
+        assert made[topics.TARGET_IMAGE] == spectrogram_image_cdr(np.abs(stft(clip)), stamp_ns=stamp)
+        pictures.append(made[topics.TARGET_IMAGE])
+        track = store.deserialize_cdr(made[topics.GROUND_TRUTH + "/pcm"], "foxglove_msgs/msg/RawAudio")
+        assert track.data.tobytes() == pcm_int16(clip, gain=PCM_GAIN) and track.timestamp == truth.header.stamp
+        tracks.append(track)
+    assert len(clips) == 8 and np.array_equal(clips[0], clips[3]) and not np.array_equal(clips[3], clips[4])
+    assert len(set(pictures)) == 8  # each stamped with its own step
