@@ -25,9 +25,9 @@ default every case after the first reads it from memory, the stricter comparison
 
 Reports steps/s and MB/s (bag bytes / wall time), CPU ms per step (the process's user + system time:
 less sensitive to the machine's load than wall time), minor page faults per step, the replay / bare-read ratios of both (target
->= 0.5), peak RSS for both bag lengths (target: flat), and the load average before and after. Then,
-from one more replay per bag with timers around its parts, where a replay step's CPU time goes: the
-bag walk (BagStream), CDR decoding, scoring (``score_magnitude``, of which its FFTs) and the rest
+>= 0.5), peak RSS for both bag lengths (target: flat), and the load average before and after. Then the
+CPU the chunks' CRC-32 checks take, and from one more replay per bag with timers around its parts, where
+a replay step's CPU time goes: the bag walk (BagStream), CDR decoding, scoring (``score_magnitude``, of which its FFTs) and the rest
 (grouping, stacking, tracking, comparing with live).
 """
 
@@ -132,6 +132,28 @@ def child(mode: str, bag: Path, *others: Path) -> dict:
             "peak_rss_mb": max(peak_rss_mib(), resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)}
 
 
+def checksum_costs(bag: Path) -> dict[str, float]:
+    """CPU seconds to CRC-32 the bag's bytes with zlib-ng's function (what the walk uses) and the system
+    zlib's (what it used before), each the best of 3."""
+    import zlib
+
+    from zlib_ng.zlib_ng import crc32
+
+    files = [bag] if bag.is_file() else sorted(bag.glob("*.mcap"))
+    data = [f.read_bytes() for f in files]
+    blocks = [whole[k:k + (1 << 20)] for whole in data for k in range(0, len(whole), 1 << 20)]
+    costs = {}
+    for name, function in (("zlib-ng", crc32), ("zlib", zlib.crc32)):
+        best = float("inf")
+        for _ in range(3):
+            start = time.process_time()
+            for block in blocks:
+                function(block)
+            best = min(best, time.process_time() - start)
+        costs[name] = best
+    return costs
+
+
 WORKERS = "2 bags, 2 procs"
 PROCESSES = "replay 2 procs"
 DROP_CACHES = Path("/proc/sys/vm/drop_caches")
@@ -225,6 +247,9 @@ def main() -> None:
                                   for ref, rep in pairs]
                     print(f"  {case} / {base} rate: {spread(ratios, '{:.2f}')} wall, {spread(cpu_ratios, '{:.2f}')} "
                           f"CPU (per interleaved pair; target vs bare >= 0.5)")
+            crc = checksum_costs(bag)
+            print(f"  checking the chunks' CRC-32 (the whole file, 1 MiB at a time, as the walk does): zlib-ng "
+                  f"{crc['zlib-ng'] / steps * 1e3:.3f} ms per step, the system zlib {crc['zlib'] / steps * 1e3:.3f}")
             split = measure("split", bag)
             cpu = {k: v / steps * 1e3 for k, v in split["parts"].items()}
             rest = split["cpu_seconds"] / steps * 1e3 - cpu["walk"] - cpu["decode"] - cpu["score"]
