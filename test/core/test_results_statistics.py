@@ -24,6 +24,10 @@ def test_confidence_interval_matches_scipys_t_interval():
     assert mean == pytest.approx(values.mean(), abs=1e-12)
     assert half_width == pytest.approx((high - low) / 2, rel=1e-9)
     assert mean_ci(values, level=0.5)[1] < half_width
+    # the very number scipy.stats gives, for small and large samples (tables printed before stay the same)
+    for n in (2, 12, 40, 1000):
+        sample = values[:n] if n <= len(values) else np.resize(values, n) * np.linspace(1, 2, n)
+        assert mean_ci(sample)[1] == float(stats.t.ppf(0.975, n - 1) * mean_sem(sample)[1])
 
 
 @pytest.mark.parametrize("summary", [mean_sem, mean_ci])
