@@ -10,11 +10,11 @@ episode with :class:`~m2h_ros.core.results.EpisodeTracker`, exactly as the live 
 holds at most a few open episodes' unscored steps, whatever the bag's length.
 
 On several cores (``ReplayConfig.score_processes``) this process still reads every chunk once and
-groups the steps, and child processes score the batches with it (it scores a batch itself whenever they
-all have one waiting); the scores are taken in reading order, so the results are the same, bit for bit,
-as one process's. Should a batch fail to score there (an
-estimate with NaN), the bag is replayed again in one process, so that what is reported about it, and
-in which order, is what one process reports.
+groups the steps, and child processes score the batches with it (it scores a batch itself whenever each
+child has three waiting); the scores are taken in reading order, so the results are the same, bit for
+bit, as one process's. Should a batch fail to score in a child (an estimate with NaN), the bag is
+replayed again in one process, so that what is reported about it, and in which order, is what one
+process reports.
 
 Recomputed and live figures are compared at ``|replayed - live| <= atol`` (default 1e-3: dB for
 SI-SDR, the metric's own unit otherwise; booleans and step counts exactly). Problems with the bag
@@ -483,8 +483,8 @@ class _Replayer:
         return _Batch(episode, group, self.pool.submit(_score_shared, block.name, shapes, config), block)
 
     def _children_busy(self) -> bool:
-        """Whether every scoring process has a batch running and two waiting: then this one scores the
-        next batch itself (with fewer, the children ran short of work while this one scored)."""
+        """Whether every child has a batch running and two waiting: then this one scores the next batch
+        itself (at two, this one did half the scoring and the child waited on its reading)."""
         waiting = sum(1 for item in self.pending if isinstance(item, _Batch) and isinstance(item.scores, Future)
                       and not item.scores.done())
         return waiting >= 3 * self.children
