@@ -140,8 +140,10 @@ def checksum_costs(bag: Path) -> dict[str, float]:
     from zlib_ng.zlib_ng import crc32
 
     files = [bag] if bag.is_file() else sorted(bag.glob("*.mcap"))
-    data = [f.read_bytes() for f in files]
-    blocks = [whole[k:k + (1 << 20)] for whole in data for k in range(0, len(whole), 1 << 20)]
+    blocks = []  # read once, 1 MiB at a time: the bag in memory once, not again as slices
+    for path in files:
+        with path.open("rb") as stream:
+            blocks.extend(iter(lambda stream=stream: stream.read(1 << 20), b""))
     costs = {}
     for name, function in (("zlib-ng", crc32), ("zlib", zlib.crc32)):
         best = float("inf")
